@@ -1,0 +1,5 @@
+import sys
+
+from planar_vo.cli import main
+
+sys.exit(main())
