@@ -1,0 +1,26 @@
+"""Front-end: levelling, inverse-depth plane histograms, Manhattan frames, features,
+the paper's planar solvers and frame-to-frame odometry. Pure: arrays in, results out.
+
+Public names are imported lazily so that light users (types only) stay light.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "estimate_planar_motion_2pt": "planar_vo.frontend.estimators",
+    "estimate_planar_motion_dpp": "planar_vo.frontend.estimators",
+    "PlanarOdometry": "planar_vo.frontend.odometry",
+    "FrontendConfig": "planar_vo.frontend.config",
+    "ManhattanObservation": "planar_vo.frontend.types",
+    "Step": "planar_vo.frontend.types",
+    "FrameResult": "planar_vo.frontend.types",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'planar_vo.frontend' has no attribute {name!r}")
