@@ -1,0 +1,33 @@
+"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run."""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+#: bench name -> (module, help)
+BENCHES: dict[str, tuple[str, str]] = {
+    "solvers": ("planar_vo.bench.solvers", "the paper's synthetic experiment (Sec. 3.1): 2-point vs 5-point"),
+    "frontend": ("planar_vo.bench.frontend", "front-end time per 960x540 frame pair, per stage"),
+    "backend": ("planar_vo.bench.backend", "10,000-pose graph: batch LM and iSAM2 timings"),
+    "io": ("planar_vo.bench.io", "peak memory while streaming a >= 1 GB log"),
+    "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="bench", metavar="WHAT")
+    for name, (module, help_text) in BENCHES.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_bench_module=module)
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:
+            continue
+        mod.add_arguments(p)
+
+
+def main(args: argparse.Namespace) -> int:
+    if not getattr(args, "bench", None):
+        print("usage: planar-vo bench {" + ",".join(BENCHES) + "} ...")
+        return 2
+    return int(importlib.import_module(args._bench_module).main(args) or 0)

@@ -1,0 +1,72 @@
+"""Estimate raw (frame-to-frame) and smoothed (pose-graph) trajectories from an RGB-D log."""
+from __future__ import annotations
+
+import argparse
+
+
+def add_input_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("input")
+    g.add_argument("--color-topic", help="colour image topic (default: found automatically)")
+    g.add_argument("--depth-topic", help="depth image topic (default: found automatically)")
+    g.add_argument("--info-topic", help="CameraInfo / CameraCalibration topic")
+    for k in ("fx", "fy", "cx", "cy"):
+        g.add_argument(f"--{k}", type=float, help="intrinsics override in pixels (give all four)")
+    g.add_argument("--pitch-deg", type=float, help="mount pitch, positive looking down (REP 103)")
+    g.add_argument("--roll-deg", type=float, help="mount roll (REP 103)")
+    g.add_argument("--height", type=float, dest="height_m", help="camera height above the floor [m]")
+    g.add_argument("--start", type=int, help="first frame index")
+    g.add_argument("--stop", type=int, help="stop before this frame index")
+    g.add_argument("--stride", type=int, help="use every N-th frame")
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict:
+    """Nested config overrides from the flags that were given."""
+    ov: dict = {"input": {}, "mount": {}, "output": {}}
+    for k in ("color_topic", "depth_topic", "info_topic", "fx", "fy", "cx", "cy", "start", "stop", "stride"):
+        v = getattr(args, k, None)
+        if v is not None:
+            ov["input"][k] = v
+    for k in ("pitch_deg", "roll_deg", "height_m"):
+        v = getattr(args, k, None)
+        if v is not None:
+            ov["mount"][k] = v
+    if getattr(args, "online", False):
+        ov["solver"] = "online"
+    if getattr(args, "no_plot", False):
+        ov["output"]["plot"] = False
+    return {k: v for k, v in ov.items() if v != {}}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="MCAP log (ROS 2 or Foxglove schemas) or TUM RGB-D folder")
+    p.add_argument("--out", required=True, help="run folder to write (created if missing)")
+    p.add_argument("--config", help="YAML configuration file (see config.yaml of any run)")
+    p.add_argument("--online", action="store_true", help="iSAM2 per frame instead of batch LM")
+    p.add_argument("--gt", help="ground truth (TUM) to draw in trajectory.png")
+    p.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_input_arguments(p)
+
+
+def main(args: argparse.Namespace) -> int:
+    from planar_vo.config import load_config
+    from planar_vo.pipeline import run
+
+    config = load_config(args.config, overrides_from_args(args))
+    result = run(args.log, args.out, config, progress=not args.quiet, gt_path=args.gt)
+    print_summary(result)
+    return 3 if result.partial else 0
+
+
+def print_summary(result) -> None:
+    r = result.report
+    f = r["frames"]
+    print(f"frames with a pose: {f['with_pose']} (direction-plus-point {f['estimated_dpp']}, "
+          f"2-point {f['estimated_2pt']}, bridged {f['bridged']}, failed {f['failed']})")
+    print(f"speed: {r['fps']} frames/s end to end")
+    pl = r.get("planarity", {})
+    if pl.get("verdict") in ("not_planar", "unverified"):
+        print(f"warning: {pl['message']}")
+    if result.partial:
+        print(f"partial run: {result.stop_reason}; results so far written")
+    print(f"wrote {result.out_dir}/: " + ", ".join(sorted(p.split('/')[-1] for p in result.files.values())))

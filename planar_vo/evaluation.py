@@ -1,0 +1,83 @@
+"""Evaluate a run folder against ground truth: raw and smoothed side by side."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from planar_vo.errors import InputError
+from planar_vo.metrics import planarity, trajectory_errors
+
+ROWS = [
+    ("matched", "poses matched", "{:.0f}"),
+    ("path_length_m", "path length [m]", "{:.2f}"),
+    ("ate_rmse_m", "ATE RMSE [m]", "{:.3f}"),
+    ("rpe_trans_per_m", "RPE trans [%/m]", "{:.2%}"),
+    ("rpe_rot_deg_per_m", "RPE rot [deg/m]", "{:.3f}"),
+    ("endpoint_drift_m", "end-point drift [m]", "{:.3f}"),
+    ("endpoint_drift_pct", "end-point drift [% of path]", "{:.2f}"),
+    ("final_yaw_error_deg", "final yaw error [deg]", "{:+.2f}"),
+]
+
+
+def load_ground_truth(path: str | Path):
+    """Ground truth from a TUM file or from an MCAP log that carries ``/ground_truth``."""
+    from planar_vo.io import open_log, read_tum_trajectory
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: ground-truth file not found; pass a TUM trajectory or an MCAP with /ground_truth to --gt")
+    if p.suffix == ".mcap" or p.is_dir():
+        with open_log(p) as log:
+            gt = log.ground_truth
+        if gt is None or len(gt) == 0:
+            raise InputError(f"{p}: carries no ground truth (/ground_truth); pass a TUM file with --gt")
+        return gt
+    return read_tum_trajectory(p)
+
+
+def find_ground_truth(run_dir: Path):
+    """Ground truth for a run without ``--gt``: carried in its log, or ``LOG.gt.tum`` beside it."""
+    report = run_dir / "report.json"
+    if not report.exists():
+        return None
+    log = Path(json.loads(report.read_text()).get("log", ""))
+    for cand in (log.with_suffix(".gt.tum"), log):
+        if cand.exists():
+            try:
+                return load_ground_truth(cand)
+            except InputError:
+                continue
+    return None
+
+
+def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
+    """Errors of ``raw.tum`` and ``smoothed.tum`` in ``run_dir`` against ``gt`` (a Trajectory)."""
+    from planar_vo.io import read_tum_trajectory
+
+    run_dir = Path(run_dir)
+    if not (run_dir / "smoothed.tum").exists():
+        raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
+    if gt is None:
+        gt = find_ground_truth(run_dir)
+    if gt is None:
+        raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
+    result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
+    for name in ("raw", "smoothed"):
+        est = read_tum_trajectory(run_dir / f"{name}.tum")
+        result[name] = trajectory_errors(est.stamps, est.poses, gt.stamps, gt.poses, max_dt=max_dt).as_dict()
+    return result
+
+
+def format_table(result: dict) -> str:
+    lines = [f"{'metric':<30}{'raw':>14}{'smoothed':>14}"]
+    for key, label, fmt in ROWS:
+        cells = []
+        for name in ("raw", "smoothed"):
+            v = result[name][key]
+            cells.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
+        lines.append(f"{label:<30}{cells[0]:>14}{cells[1]:>14}")
+    g = result["ground_truth"]
+    lines.append(f"ground truth: {g['poses']} poses, height range {g['height_range_m']:.3f} m, "
+                 f"tilt range {g['tilt_range_deg']:.2f} deg")
+    return "\n".join(lines)

@@ -1,0 +1,51 @@
+"""Top-view trajectory plot (matplotlib, off-screen). Written atomically."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from planar_vo.metrics import associate
+
+_STYLES = {"raw": dict(color="tab:orange", lw=1.2, ls="--"), "smoothed": dict(color="tab:blue", lw=1.8),
+           "ground truth": dict(color="k", lw=1.0, alpha=0.7)}
+
+
+def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, title: str | None = None) -> None:
+    """Plot camera positions seen from above (x forward, y left of the first frame).
+
+    ``trajectories``: name -> Trajectory (``T_odom_cam``). ``ground_truth``: Trajectory in
+    its own world frame; it is brought into ``odom`` by aligning its pose at the first
+    estimated stamp with the first estimated pose, so the plot shows drift as it grew.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=110)
+    first = next(iter(trajectories.values()))
+    if ground_truth is not None and len(ground_truth) and len(first):
+        ia, ib = associate(first.stamps, ground_truth.stamps, 0.05)
+        if len(ia):
+            A = first.poses[ia[0]] @ np.linalg.inv(ground_truth.poses[ib[0]])
+            P = (A[:3, :3] @ ground_truth.positions.T).T + A[:3, 3]
+            ax.plot(P[:, 0], P[:, 1], label="ground truth", **_STYLES["ground truth"])
+    for name, traj in trajectories.items():
+        P = traj.positions
+        ax.plot(P[:, 0], P[:, 1], label=name, **_STYLES.get(name, {}))
+    if len(first):
+        ax.plot(*first.positions[0, :2], "go", ms=6, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m] (odom)")
+    ax.set_ylabel("y [m] (odom)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
