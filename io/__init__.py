@@ -1,0 +1,7 @@
+"""Data layer: RGB-D log readers (MCAP, TUM folders) and writers, trajectory I/O."""
+from planar_vo.io.atomic import atomic_path
+from planar_vo.io.mcap_writer import LogTopics, RGBDLogWriter
+from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
+
+__all__ = ["CameraIntrinsics", "LogTopics", "Mount", "RGBDFrame", "RGBDLogWriter", "Trajectory",
+           "atomic_path"]
