@@ -1,0 +1,629 @@
+"""Robust planar-motion estimation: 2-point RANSAC (+ metric scale) and direction-plus-point.
+
+Convention: levelled frames (x right, y down, z forward), ``X2 = R_y(yaw) X1 + t`` with
+``t[1] = 0`` -- see :mod:`planar_vo.frontend.solvers`. Estimators are pure (arrays in,
+``(motion, info)`` out), seeded through their options, and never raise on degenerate
+data: they return ``motion = None`` (or a flagged motion) with ``info.status`` saying why.
+Malformed input (wrong shape, non-finite image coordinates) raises ``ValueError``.
+
+Scoring. The 2-point homography is exact only for the sampled pair (its virtual vertical
+plane), so every hypothesis is scored against all points with the Sampson error of
+``E = [t]x R`` (MSAC, truncated quadratic), with a chirality test (points in front of both
+cameras) deciding the sign of ``t``; refinement minimises the same Sampson error.
+With ``t = (tx, 0, tz)`` and ``R = R_y(yaw)`` the essential matrix is
+``[[0, a, 0], [b, 0, c], [0, d, 0]]``, ``a = -tz``, ``b = tz cos + tx sin``,
+``c = tz sin - tx cos``, ``d = tx``, hence (per point, normalised coordinates)
+
+    r = x2^T E x1 = a x2 y1 + b x1 y2 + c y2 + d y1
+    g = (a y1)^2 + (b x1 + c)^2 + (b y2)^2 + (a x2 + d)^2,    sampson^2 = r^2 / g,
+
+and the depths triangulated in the horizontal plane have the signs of ``-(a x2 + d) / D``
+(view 1) and ``(b x1 + c) / D`` (view 2), ``D = cos (x1 - x2) + sin (1 + x1 x2)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planar_vo.frontend.solvers import PlanarMotion, homography_2pt_batch
+from planar_vo.geometry import wrap_angle
+
+__all__ = [
+    "TwoPointOptions",
+    "MetricTwoPointOptions",
+    "DirPointOptions",
+    "EstimateInfo",
+    "estimate_planar_motion_2pt",
+    "estimate_planar_motion_2pt_metric",
+    "estimate_planar_motion_dpp",
+    "estimate_planar_motion_with_solver",
+    "sampson_errors",
+]
+
+# info.status values
+OK = "ok"
+PURE_ROTATION = "pure_rotation"      # yaw fine, translation direction unobservable
+TOO_FEW_POINTS = "too_few_points"
+NO_MODEL = "no_model"                # no hypothesis with enough support
+NO_DEPTH = "no_depth"                # metric estimator: no inlier with valid depth
+
+
+@dataclass
+class TwoPointOptions:
+    """Options of :func:`estimate_planar_motion_2pt`.
+
+    The Sampson threshold is ``max_error`` (normalised image units) if given, else
+    ``max_error_px / focal_px``. ``focal_px`` defaults to a Kinect-like 525 px: set it from
+    the camera intrinsics. RANSAC stops once ``confidence`` is reached (adaptive,
+    between ``min_iterations`` and ``max_iterations`` samples, drawn ``batch_size`` at a
+    time and solved together). ``seed`` seeds the sampler.
+    """
+
+    max_error_px: float = 1.0
+    focal_px: float = 525.0
+    max_error: float | None = None
+    confidence: float = 0.999
+    min_iterations: int = 16
+    max_iterations: int = 2000
+    batch_size: int = 32
+    min_inliers: int = 6
+    refine: bool = True
+    max_refine_iterations: int = 15
+    seed: int = 0
+
+    def threshold(self) -> float:
+        """Sampson threshold in normalised image units."""
+        return float(self.max_error) if self.max_error is not None else self.max_error_px / self.focal_px
+
+
+@dataclass
+class MetricTwoPointOptions(TwoPointOptions):
+    """Options of :func:`estimate_planar_motion_2pt_metric`.
+
+    Depth noise model (per view): ``sigma(Z) = depth_sigma_const + depth_sigma_quad * Z^2``
+    metres (structured-light / stereo sensors); image noise ``pixel_sigma`` pixels at
+    ``focal_px``. A 3-D match supports the scale when its horizontal residual is within
+    ``depth_chi2`` (chi-square, 2 dof) of that model.
+    """
+
+    depth_sigma_const: float = 0.002
+    depth_sigma_quad: float = 0.002
+    pixel_sigma: float = 0.5
+    depth_chi2: float = 9.21
+
+
+@dataclass
+class DirPointOptions:
+    """Options of :func:`estimate_planar_motion_dpp` (1-point RANSAC on ``t``, yaw known).
+
+    Inlier test: horizontal 3-D residual ``|P2 - R P1 - t|`` (x, z) against the depth
+    noise model ``sigma(Z) = depth_sigma_const + depth_sigma_quad * Z^2`` of both views plus
+    the lateral image noise ``pixel_sigma / focal_px * Z``, chi-square ``chi2`` (2 dof).
+    """
+
+    depth_sigma_const: float = 0.002
+    depth_sigma_quad: float = 0.002
+    pixel_sigma: float = 0.5
+    focal_px: float = 525.0
+    chi2: float = 9.21
+    confidence: float = 0.999
+    max_iterations: int = 200
+    min_inliers: int = 3
+    seed: int = 0
+
+
+@dataclass
+class EstimateInfo:
+    """What an estimator reports besides the motion.
+
+    ``inliers``: (N,) bool. ``status``: ``"ok"``, ``"pure_rotation"`` (translation not
+    observable; the motion's yaw is still valid), ``"too_few_points"``, ``"no_model"``,
+    ``"no_depth"``. ``iterations``: RANSAC samples drawn. ``cost``: final sum of squared
+    residuals over the inliers (Sampson, normalised units^2, for the 2-point estimator;
+    whitened for the others). ``covariance``: (3, 3) over (yaw, t_x, t_z) where provided.
+    ``refine_iterations``: Gauss-Newton/LM steps taken. ``scale_inliers``: (N,) bool, 3-D
+    matches that fixed the metric scale (metric estimator).
+    """
+
+    inliers: np.ndarray
+    status: str = OK
+    iterations: int = 0
+    cost: float = float("nan")
+    num_inliers: int = 0
+    refine_iterations: int = 0
+    covariance: np.ndarray | None = None
+    scale_inliers: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return self.status in (OK, PURE_ROTATION)
+
+
+# ----------------------------------------------------------------------------- input
+
+def _as_points(name: str, a, dim: int, allow_nan: bool = False) -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise ValueError(f"{name} must have shape (N, {dim}), got {arr.shape}")
+    if not allow_nan and not np.isfinite(arr).all():
+        bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+        raise ValueError(f"{name} {arr.shape} has non-finite rows {bad[:5].tolist()}"
+                         f"{'...' if len(bad) > 5 else ''}")
+    return arr
+
+
+def _check_same(n1: str, a: np.ndarray, n2: str, b: np.ndarray) -> None:
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(f"{n1} {a.shape} and {n2} {b.shape} must have the same number of rows")
+
+
+def _ransac_needed(confidence: float, inlier_ratio: float, sample_size: int) -> float:
+    w = inlier_ratio ** sample_size
+    if w <= 0.0:
+        return math.inf
+    if w >= 1.0:
+        return 0.0
+    return math.log(1.0 - confidence) / math.log1p(-w)
+
+
+# ------------------------------------------------------------------- Sampson geometry
+
+def _coeffs(c, s, tx, tz):
+    """Essential-matrix entries (a, b, c, d) of ``[t]x R_y`` (see module docstring)."""
+    return -tz, tz * c + tx * s, tz * s - tx * c, tx
+
+
+def sampson_errors(yaw: float, t, x1, x2) -> np.ndarray:
+    """(N,) Sampson errors (normalised units) of matches ``x1``, ``x2`` (N, 2) under ``E = [t]x R_y(yaw)``."""
+    t = np.asarray(t, dtype=float)
+    a, b, cc, d = _coeffs(math.cos(yaw), math.sin(yaw), t[0], t[2])
+    X1, Y1, X2, Y2 = x1[:, 0], x1[:, 1], x2[:, 0], x2[:, 1]
+    r = a * X2 * Y1 + b * X1 * Y2 + cc * Y2 + d * Y1
+    g = (a * Y1) ** 2 + (b * X1 + cc) ** 2 + (b * Y2) ** 2 + (a * X2 + d) ** 2
+    return np.abs(r) / np.sqrt(np.maximum(g, 1e-300))
+
+
+class _Matches:
+    """Per-point features shared by scoring and refinement (computed once)."""
+
+    def __init__(self, x1: np.ndarray, x2: np.ndarray):
+        self.X1, self.Y1 = x1[:, 0].copy(), x1[:, 1].copy()
+        self.X2, self.Y2 = x2[:, 0].copy(), x2[:, 1].copy()
+        # r = [a, b, c, d] . F ; D = [cos, sin] . G
+        self.F = np.stack([self.X2 * self.Y1, self.X1 * self.Y2, self.Y2, self.Y1])
+        self.G = np.stack([self.X1 - self.X2, 1.0 + self.X1 * self.X2])
+        self.Y1sq, self.Y2sq = self.Y1 ** 2, self.Y2 ** 2
+
+    def subset(self, mask: np.ndarray) -> "_Matches":
+        m = _Matches.__new__(_Matches)
+        for k in ("X1", "Y1", "X2", "Y2", "Y1sq", "Y2sq"):
+            setattr(m, k, getattr(self, k)[mask])
+        m.F, m.G = self.F[:, mask], self.G[:, mask]
+        return m
+
+
+def _score(m: _Matches, c, s, tx, tz, thr2: float, parallax_tol: float):
+    """Score H hypotheses (arrays (H,)) against all N matches in one array expression.
+
+    Returns ``(score (H,), sign (H,) +-1, ok (H, N) inlier mask for the chosen sign)``.
+    MSAC: sum of min(e^2, thr^2), points failing chirality counted at thr^2.
+    """
+    a, b, cc, d = _coeffs(c, s, tx, tz)
+    r = np.stack([a, b, cc, d], axis=1) @ m.F                       # (H, N)
+    u = b[:, None] * m.X1 + cc[:, None]                              # (E x1)_2, ~ Z2 sign * D
+    v = a[:, None] * m.X2 + d[:, None]                               # (E^T x2)_2, ~ -Z1 sign * D
+    g = (a * a)[:, None] * m.Y1sq + (b * b)[:, None] * m.Y2sq + u * u + v * v
+    e2 = r * r / np.maximum(g, 1e-300)
+    D = np.stack([c, s], axis=1) @ m.G
+    inl = e2 < thr2
+    uD, vD = u * D, v * D
+    low = np.abs(D) < parallax_tol                                   # too little parallax to tell
+    front_pos = inl & (((uD > 0) & (vD < 0)) | low)
+    front_neg = inl & (((uD < 0) & (vD > 0)) | low)
+    npos, nneg = front_pos.sum(1), front_neg.sum(1)
+    sign = np.where(npos >= nneg, 1.0, -1.0)
+    ok = np.where((sign > 0)[:, None], front_pos, front_neg)
+    score = np.where(ok, e2, thr2).sum(1)
+    return score, sign, ok
+
+
+def _sampson_residuals_2(m: _Matches, theta: float, alpha: float, jac: bool):
+    """Sampson residuals (M,) and Jacobian (M, 2) w.r.t. (yaw, alpha), t = (sin a, 0, cos a)."""
+    c, s = math.cos(theta), math.sin(theta)
+    tx, tz = math.sin(alpha), math.cos(alpha)
+    a, b, cc, d = _coeffs(c, s, tx, tz)
+    r = a * m.F[0] + b * m.F[1] + cc * m.F[2] + d * m.F[3]
+    u = b * m.X1 + cc
+    v = a * m.X2 + d
+    g = a * a * m.Y1sq + b * b * m.Y2sq + u * u + v * v
+    sg = np.sqrt(np.maximum(g, 1e-300))
+    e = r / sg
+    if not jac:
+        return e, None
+    J = np.empty((len(e), 2))
+    # d/dtheta: (da, db, dc, dd) = (0, -c', b, 0);  d/dalpha: (d, c', -b, -a)
+    for k, (da, db, dc, dd) in enumerate(((0.0, -cc, b, 0.0), (d, cc, -b, -a))):
+        dr = da * m.F[0] + db * m.F[1] + dc * m.F[2] + dd * m.F[3]
+        dg = 2.0 * (a * da * m.Y1sq + u * (m.X1 * db + dc) + b * db * m.Y2sq + v * (m.X2 * da + dd))
+        J[:, k] = (dr - 0.5 * e * dg / sg) / sg
+    return e, J
+
+
+def _levenberg_marquardt(fun, p0: np.ndarray, max_iter: int):
+    """Small dense LM: ``fun(p, jac) -> (residuals, J)``. Returns (p, cost, iterations, J)."""
+    p = np.array(p0, dtype=float)
+    e, J = fun(p, True)
+    cost = float(e @ e)
+    lam = 1e-4
+    it = 0
+    for it in range(1, max_iter + 1):
+        A = J.T @ J
+        gvec = J.T @ e
+        improved = False
+        for _ in range(8):
+            try:
+                step = -np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), gvec)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            pn = p + step
+            en, Jn = fun(pn, True)
+            cn = float(en @ en)
+            if cn <= cost:
+                improved = True
+                rel = (cost - cn) / max(cost, 1e-300)
+                p, e, J, cost = pn, en, Jn, cn
+                lam = max(lam * 0.1, 1e-12)
+                break
+            lam *= 10.0
+        if not improved or rel < 1e-12 or np.abs(step).max() < 1e-12:
+            break
+    return p, cost, it, J
+
+
+# ------------------------------------------------------------------- 2-point RANSAC core
+
+def _homography_hypotheses(x1: np.ndarray, x2: np.ndarray, idx: np.ndarray):
+    """Default minimal solver for the RANSAC: (K, 2) sample indices -> yaw (H,), t (H, 3)."""
+    i, j = idx[:, 0], idx[:, 1]
+    # a point keeps its side of the horizon (Y2 = Y1, Z > 0): cheap pre-filter
+    keep = (x1[i, 1] * x2[i, 1] > 0.0) & (x1[j, 1] * x2[j, 1] > 0.0)
+    i, j = i[keep], j[keep]
+    yaw, t, _n, _tod, ok = homography_2pt_batch(x1[i], x1[j], x2[i], x2[j])
+    return yaw[ok].reshape(-1), t[ok].reshape(-1, 3)
+
+
+def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=None, sample_size: int = 2):
+    """Shared RANSAC + Sampson refinement. Returns (yaw, t_dir (3,), info).
+
+    ``solver(x1, x2, idx (K, sample_size)) -> (yaw (H,), t (H, 3))`` proposes hypotheses;
+    the default is the vectorised 2-point homography solver (another minimal solver, e.g.
+    PoseLib's, can be benchmarked inside the same loop).
+    """
+    solver = solver or _homography_hypotheses
+    N = x1.shape[0]
+    info = EstimateInfo(inliers=np.zeros(N, dtype=bool))
+    if N < sample_size:
+        info.status = TOO_FEW_POINTS
+        return None, None, info
+    thr = opt.threshold()
+    thr2 = thr * thr
+    par_tol = 2.0 * thr
+    rng = np.random.default_rng(opt.seed)
+    m = _Matches(x1, x2)
+
+    best_score, best_yaw, best_t = math.inf, 0.0, (0.0, 1.0)  # t as (tx, tz)
+    best_ok = None
+    drawn = 0
+    needed = max(opt.min_iterations, 1)
+    while drawn < min(needed, opt.max_iterations):
+        K = max(int(min(opt.batch_size, opt.max_iterations - drawn, max(needed - drawn, 1))), 1)
+        if sample_size == 2:
+            i = rng.integers(0, N, K)
+            idx = np.stack([i, (i + rng.integers(1, N, K)) % N], axis=1)
+        else:
+            idx = np.argsort(rng.random((K, N)), axis=1)[:, :sample_size]
+        drawn += K
+        yaw, t = solver(x1, x2, idx)
+        if len(yaw) == 0:
+            continue
+        score, sign, okm = _score(m, np.cos(yaw), np.sin(yaw), t[:, 0], t[:, 2], thr2, par_tol)
+        k = int(np.argmin(score))
+        if score[k] < best_score:
+            best_score, best_yaw = float(score[k]), float(yaw[k])
+            best_t = (float(sign[k] * t[k, 0]), float(sign[k] * t[k, 2]))
+            best_ok = okm[k]
+            needed = max(_ransac_needed(opt.confidence, best_ok.sum() / N, sample_size), opt.min_iterations)
+    info.iterations = drawn
+    if best_ok is None or best_ok.sum() < max(opt.min_inliers, 2):
+        info.status = NO_MODEL
+        return None, None, info
+
+    theta, alpha = best_yaw, math.atan2(best_t[0], best_t[1])
+    inl = best_ok
+    refine_iters = 0
+    if opt.refine:
+        for _round in range(2):  # refine, re-select inliers, refine again if they changed
+            sub = m.subset(inl)
+            fun = lambda p, jac: _sampson_residuals_2(sub, p[0], p[1], jac)  # noqa: E731
+            p, _cost, its, _J = _levenberg_marquardt(fun, np.array([theta, alpha]), opt.max_refine_iterations)
+            refine_iters += its
+            theta, alpha = float(p[0]), float(p[1])
+            c, s = math.cos(theta), math.sin(theta)
+            sc, sign, okm = _score(m, np.array([c]), np.array([s]), np.array([math.sin(alpha)]),
+                                   np.array([math.cos(alpha)]), thr2, par_tol)
+            if sign[0] < 0:
+                alpha += math.pi
+            new = okm[0]
+            if np.array_equal(new, inl) or new.sum() < max(opt.min_inliers, 2):
+                inl = new if new.sum() >= max(opt.min_inliers, 2) else inl
+                break
+            inl = new
+    t_dir = np.array([math.sin(alpha), 0.0, math.cos(alpha)])
+    theta = float(wrap_angle(theta))
+    e = sampson_errors(theta, t_dir, x1[inl], x2[inl])
+    info.inliers = inl
+    info.num_inliers = int(inl.sum())
+    info.cost = float(e @ e)
+    info.refine_iterations = refine_iters
+    # pure rotation: x2 ~ R x1 explains the inliers, so t is unobservable
+    c, s = math.cos(theta), math.sin(theta)
+    X1, Y1 = x1[inl, 0], x1[inl, 1]
+    zr = -s * X1 + c
+    rot_err = np.hypot((c * X1 + s) / zr - x2[inl, 0], Y1 / zr - x2[inl, 1])
+    info.extra["rotation_only_median_error"] = float(np.median(rot_err))
+    if np.median(rot_err) < thr:
+        info.status = PURE_ROTATION
+    return theta, t_dir, info
+
+
+def estimate_planar_motion_2pt(x1, x2, options: TwoPointOptions | None = None):
+    """Planar motion from 2-D matches: 2-point RANSAC + Sampson refinement (paper Sec. 2.2, 3.1).
+
+    ``x1``, ``x2``: (N, 2) float64 normalised coordinates of the same points in the levelled
+    frames of view 1 and 2 (points anywhere, not only on the ground).
+    Returns ``(motion, info)``: ``motion`` a :class:`PlanarMotion` with ``yaw`` (rad) and unit
+    ``t`` (3,), ``t[1] = 0``, such that ``X2 = R_y(yaw) X1 + s t`` for some ``s > 0``, or
+    ``None`` when ``info.status`` is ``"too_few_points"`` / ``"no_model"``; ``info`` an
+    :class:`EstimateInfo` (``inliers`` (N,) bool, ``iterations``, ``cost``, ``status``).
+    With ``status == "pure_rotation"`` the yaw is valid and ``t`` is not observable.
+    """
+    opt = options or TwoPointOptions()
+    x1 = _as_points("x1", x1, 2)
+    x2 = _as_points("x2", x2, 2)
+    _check_same("x1", x1, "x2", x2)
+    theta, t_dir, info = _ransac_2pt(x1, x2, opt)
+    if theta is None:
+        return None, info
+    return PlanarMotion(theta, t_dir, pure_rotation=info.status == PURE_ROTATION), info
+
+
+def estimate_planar_motion_with_solver(x1, x2, solver, sample_size: int,
+                                       options: TwoPointOptions | None = None):
+    """Same RANSAC, scoring and refinement as :func:`estimate_planar_motion_2pt`, any minimal solver.
+
+    ``solver(x1, x2, idx) -> (yaw (H,), t (H, 3))`` turns ``idx`` (K, ``sample_size``) sample
+    indices into hypotheses (unit ``t``, either sign). Used to benchmark other planar
+    solvers (e.g. PoseLib's upright-planar ones) on equal terms.
+    """
+    opt = options or TwoPointOptions()
+    x1 = _as_points("x1", x1, 2)
+    x2 = _as_points("x2", x2, 2)
+    _check_same("x1", x1, "x2", x2)
+    theta, t_dir, info = _ransac_2pt(x1, x2, opt, solver=solver, sample_size=sample_size)
+    if theta is None:
+        return None, info
+    return PlanarMotion(theta, t_dir, pure_rotation=info.status == PURE_ROTATION), info
+
+
+# ------------------------------------------------------------------ metric 2-point path
+
+def _depth_sigma(Z: np.ndarray, const: float, quad: float) -> np.ndarray:
+    return const + quad * Z * Z
+
+
+def _metric_residuals(m: _Matches, w_img: float, Q1: np.ndarray, Q2: np.ndarray, inv_sig: np.ndarray,
+                      p: np.ndarray, jac: bool):
+    """Whitened residuals of (yaw, tx, tz): Sampson (M,) / sigma_img, then 3-D x and z (K,) each."""
+    theta, tx, tz = p
+    c, s = math.cos(theta), math.sin(theta)
+    tn = math.hypot(tx, tz)
+    parts, jparts = [], []
+    if tn > 1e-12 and len(m.X1):
+        a, b, cc, d = _coeffs(c, s, tx, tz)
+        r = a * m.F[0] + b * m.F[1] + cc * m.F[2] + d * m.F[3]
+        u = b * m.X1 + cc
+        v = a * m.X2 + d
+        g = a * a * m.Y1sq + b * b * m.Y2sq + u * u + v * v
+        sg = np.sqrt(np.maximum(g, 1e-300))
+        e = r / sg
+        parts.append(e * w_img)
+        if jac:
+            J = np.empty((len(e), 3))
+            # d/dtheta (0, -c', b, 0); d/dtx (0, s, -c, 1); d/dtz (-1, c, s, 0)
+            for k, (da, db, dc, dd) in enumerate(((0.0, -cc, b, 0.0), (0.0, s, -c, 1.0), (-1.0, c, s, 0.0))):
+                dr = da * m.F[0] + db * m.F[1] + dc * m.F[2] + dd * m.F[3]
+                dg = 2.0 * (a * da * m.Y1sq + u * (m.X1 * db + dc) + b * db * m.Y2sq + v * (m.X2 * da + dd))
+                J[:, k] = (dr - 0.5 * e * dg / sg) / sg * w_img
+            jparts.append(J)
+    # 3-D: (P2 - R P1 - t)_{x,z} / sigma
+    rx = c * Q1[:, 0] + s * Q1[:, 2]
+    rz = -s * Q1[:, 0] + c * Q1[:, 2]
+    ex = (Q2[:, 0] - rx - tx) * inv_sig
+    ez = (Q2[:, 2] - rz - tz) * inv_sig
+    parts += [ex, ez]
+    if jac:
+        Jx = np.zeros((len(ex), 3))
+        Jz = np.zeros((len(ez), 3))
+        Jx[:, 0] = -rz * inv_sig
+        Jx[:, 1] = -inv_sig
+        Jz[:, 0] = rx * inv_sig
+        Jz[:, 2] = -inv_sig
+        jparts += [Jx, Jz]
+    e = np.concatenate(parts)
+    return e, (np.vstack(jparts) if jac else None)
+
+
+def _covariance(J: np.ndarray, cost: float, dof_params: int) -> np.ndarray:
+    """``(J^T J)^-1`` scaled by the reduced chi-square of the whitened inlier residuals."""
+    m = J.shape[0]
+    A = J.T @ J
+    try:
+        cov = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(A)
+    factor = cost / (m - dof_params) if m > dof_params else 1.0
+    return cov * factor
+
+
+def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOptions | None = None):
+    """Metric planar motion: 2-point RANSAC for yaw and direction, scale from depth, joint refinement.
+
+    ``x1``, ``x2``: (N, 2) float64 normalised levelled coordinates (finite). ``P1``, ``P2``:
+    (N, 3) float64 levelled 3-D points (metres) of the same matches, NaN (or Z <= 0) where
+    depth is invalid. Returns ``(motion, info)``: ``motion.t`` metric (metres), ``X2 = R X1 +
+    t``; ``info.inliers`` (N,) bool (epipolar inliers), ``info.scale_inliers`` (N,) bool,
+    ``info.covariance`` (3, 3) over (yaw, t_x, t_z) from the whitened inlier residuals.
+    ``motion`` is None when the 2-point stage fails or no inlier has valid depth.
+    """
+    opt = options or MetricTwoPointOptions()
+    x1 = _as_points("x1", x1, 2)
+    x2 = _as_points("x2", x2, 2)
+    P1 = _as_points("P1", P1, 3, allow_nan=True)
+    P2 = _as_points("P2", P2, 3, allow_nan=True)
+    _check_same("x1", x1, "x2", x2)
+    _check_same("x1", x1, "P1", P1)
+    _check_same("x1", x1, "P2", P2)
+    theta, t_dir, info = _ransac_2pt(x1, x2, opt)
+    if theta is None:
+        return None, info
+    inl = info.inliers
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
+    dep = inl & valid
+    if not dep.any():
+        info.status = NO_DEPTH
+        return None, info
+    c, s = math.cos(theta), math.sin(theta)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    Q1, Q2 = P1[dep], P2[dep]
+    sig = np.sqrt(_depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+                  + _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+                  + (opt.pixel_sigma / opt.focal_px) ** 2 * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2))
+    diff = Q2 - Q1 @ R.T
+    if info.status == PURE_ROTATION:
+        # direction unobservable: robust (median) metric t from depth alone
+        t0 = np.array([np.median(diff[:, 0]), 0.0, np.median(diff[:, 2])])
+    else:
+        t0 = np.median(diff @ t_dir) * t_dir
+    res = np.hypot(diff[:, 0] - t0[0], diff[:, 2] - t0[2]) / sig
+    keep = res * res < opt.depth_chi2
+    if not keep.any():
+        info.status = NO_DEPTH
+        return None, info
+    scale_inl = np.zeros_like(inl)
+    scale_inl[np.flatnonzero(dep)[keep]] = True
+    Q1, Q2, inv_sig = Q1[keep], Q2[keep], 1.0 / sig[keep]
+    w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
+    # Sampson terms stay well defined for small non-zero t (they are scale invariant)
+    sub = _Matches(x1[inl], x2[inl])
+    fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
+    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
+    info.refine_iterations += its
+    info.cost = cost
+    info.covariance = _covariance(J, cost, 3)
+    info.scale_inliers = scale_inl
+    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
+                          pure_rotation=info.status == PURE_ROTATION)
+    return motion, info
+
+
+# ------------------------------------------------------------------ direction-plus-point
+
+def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | None = None,
+                               yaw_sigma: float = math.radians(1.0)):
+    """Direction-plus-point estimation (paper Sec. 2.1): yaw known, 1-point RANSAC on ``t``.
+
+    ``P1``, ``P2``: (N, 3) float64 levelled 3-D points (metres) of matched features in views 1
+    and 2 (rows with NaN or Z <= 0 are ignored); ``yaw``: radians, from the Manhattan
+    alignment (:func:`~planar_vo.frontend.solvers.yaw_from_manhattan_headings`);
+    ``yaw_sigma``: its standard deviation (rad).
+    Returns ``(motion, info)``: ``motion.t`` metric with ``X2 = R_y(yaw) X1 + t``; ``t`` is the
+    noise-weighted least-squares mean of ``P2 - R P1`` (x, z) over the inliers.
+    ``info.covariance`` (3, 3) over (yaw, t_x, t_z): ``yaw_sigma^2``, the inlier scatter of
+    ``t`` (reduced chi-square scaled) and the first-order effect of the yaw error on ``t``.
+    """
+    opt = options or DirPointOptions()
+    P1 = _as_points("P1", P1, 3, allow_nan=True)
+    P2 = _as_points("P2", P2, 3, allow_nan=True)
+    _check_same("P1", P1, "P2", P2)
+    if not math.isfinite(yaw):
+        raise ValueError(f"yaw must be finite, got {yaw}")
+    N = P1.shape[0]
+    info = EstimateInfo(inliers=np.zeros(N, dtype=bool))
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
+    idx = np.flatnonzero(valid)
+    if len(idx) < max(opt.min_inliers, 1):
+        info.status = TOO_FEW_POINTS
+        return None, info
+    c, s = math.cos(yaw), math.sin(yaw)
+    Q1, Q2 = P1[idx], P2[idx]
+    rx = c * Q1[:, 0] + s * Q1[:, 2]
+    rz = -s * Q1[:, 0] + c * Q1[:, 2]
+    dx, dz = Q2[:, 0] - rx, Q2[:, 2] - rz          # per-match t candidates (eq. 2, our sign)
+    var = (_depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+           + _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+           + (opt.pixel_sigma / opt.focal_px) ** 2 * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2))
+    # each hypothesis t_k = d_k is uncertain too: test |d_i - d_k|^2 / (var_i + var_k).
+    # Small sets: every match is a hypothesis; large ones: adaptive random batches.
+    rng = np.random.default_rng(opt.seed)
+    M = len(idx)
+    best_score, best_ok, drawn = math.inf, None, 0
+    needed = 1.0
+    while drawn < min(max(needed, 1.0), opt.max_iterations, M):
+        hyp = np.arange(M) if M <= 64 else rng.integers(0, M, 64)
+        drawn += len(hyp)
+        d2 = ((dx[None, :] - dx[hyp, None]) ** 2 + (dz[None, :] - dz[hyp, None]) ** 2) \
+            / (var[None, :] + var[hyp, None])
+        ok = d2 < opt.chi2
+        score = np.where(ok, d2, opt.chi2).sum(1)
+        k = int(np.argmin(score))
+        if score[k] < best_score:
+            best_score, best_ok = float(score[k]), ok[k]
+            needed = _ransac_needed(opt.confidence, best_ok.sum() / M, 1)
+    info.iterations = drawn
+    if best_ok is None or best_ok.sum() < opt.min_inliers:
+        info.status = NO_MODEL
+        return None, info
+    inl = best_ok
+    for _ in range(3):  # weighted mean, re-select against it
+        w = 1.0 / var[inl]
+        tx = float((w * dx[inl]).sum() / w.sum())
+        tz = float((w * dz[inl]).sum() / w.sum())
+        new = ((dx - tx) ** 2 + (dz - tz) ** 2) / var < opt.chi2
+        if new.sum() < opt.min_inliers or np.array_equal(new, inl):
+            break
+        inl = new
+    w = 1.0 / var[inl]
+    chi2 = float((w * ((dx[inl] - tx) ** 2 + (dz[inl] - tz) ** 2)).sum())
+    n_in = int(inl.sum())
+    factor = chi2 / (2 * n_in - 2) if n_in > 1 else 1.0
+    var_t = factor / w.sum()
+    # t = mean(P2 - R P1): dt/dyaw = -mean(dR/dyaw P1) = (-rz, +rx) weighted
+    gx = -float((w * rz[inl]).sum() / w.sum())
+    gz = float((w * rx[inl]).sum() / w.sum())
+    g = np.array([1.0, gx, gz])
+    cov = yaw_sigma ** 2 * np.outer(g, g)
+    cov[1, 1] += var_t
+    cov[2, 2] += var_t
+    mask = np.zeros(N, dtype=bool)
+    mask[idx[inl]] = True
+    info.inliers = mask
+    info.num_inliers = n_in
+    info.cost = chi2
+    info.covariance = cov
+    return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
