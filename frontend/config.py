@@ -1,0 +1,139 @@
+"""Front-end configuration: typed dataclasses, defaults in code.
+
+Load from a nested dict (YAML section ``frontend``) with
+``planar_vo.configtools.from_dict(FrontendConfig, d)``; unknown keys are rejected.
+Angles in configuration are degrees (names end in ``_deg``), distances metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from planar_vo.errors import ConfigError
+
+
+def _positive(section: str, **values: float) -> None:
+    for name, v in values.items():
+        if not v > 0:
+            raise ConfigError(f"config key '{section}.{name}' must be > 0, got {v!r}")
+
+
+@dataclass
+class LevellingConfig:
+    """Camera pitch/roll/height. Precedence: these keys, then the log's mount, then the floor.
+
+    ``pitch_deg``/``roll_deg`` fix the tilt (REP 103 mount angles: pitch > 0 looks down);
+    ``height_m`` fixes the camera height above the floor. Whatever is left unset is
+    estimated from the ground plane over the first ``init_frames`` frames (robust median)
+    and, with ``refine``, refined as the run goes.
+    """
+
+    pitch_deg: float | None = None
+    roll_deg: float | None = None
+    height_m: float | None = None
+    init_frames: int = 5             # floor estimates pooled before the tilt is trusted
+    refine: bool = True              # keep refining after initialisation
+    window: int = 200                # robust median over at most this many floor estimates
+    min_floor_support: float = 0.03  # floor must cover this image fraction to be used
+    max_tilt_jump_deg: float = 3.0   # floor estimates this far from the current tilt are outliers
+    initial_pitch_deg: float = 0.0   # starting guess while estimating (helps very tilted mounts)
+
+    def __post_init__(self) -> None:
+        if self.init_frames < 1 or self.window < self.init_frames:
+            raise ConfigError("config key 'levelling.init_frames' must be >= 1 and <= 'levelling.window'")
+        if self.height_m is not None:
+            _positive("levelling", height_m=self.height_m)
+
+
+@dataclass
+class PlaneConfig:
+    """Inverse-depth histogram plane detection (paper Sec. 2.1)."""
+
+    stride: int = 4                  # use every stride-th pixel in both directions
+    min_depth: float = 0.3           # metres; Kinect v2 reads from ~0.5 m
+    max_depth: float = 8.0
+    n_invdepth_bins: int = 192       # inverse-depth axis of both histograms
+    n_image_bins: int = 160          # levelled row / column axis
+    min_cell_count: int = 6          # a histogram cell must hold this many samples to vote
+    hough_step_deg: float = 1.0      # plane orientation step of the Hough vote
+    inlier_rel_depth: float = 0.03   # point-to-plane test: |Z - Z_plane| / Z
+    min_support: float = 0.01        # planes covering less of the image are dropped
+    max_walls: int = 6
+    horizontal_tilt_deg: float = 3.0  # floor/ceiling normal within this of vertical (levelled)
+    wall_tilt_deg: float = 6.0       # wall normal within this of horizontal
+    unlevelled_tilt_deg: float = 30.0  # floor search range while the tilt is still unknown
+    refit_iterations: int = 2
+
+    def __post_init__(self) -> None:
+        _positive("planes", stride=self.stride, min_depth=self.min_depth,
+                  n_invdepth_bins=self.n_invdepth_bins, n_image_bins=self.n_image_bins,
+                  hough_step_deg=self.hough_step_deg, inlier_rel_depth=self.inlier_rel_depth)
+        if self.max_depth <= self.min_depth:
+            raise ConfigError("config key 'planes.max_depth' must exceed 'planes.min_depth'")
+
+
+@dataclass
+class ManhattanConfig:
+    """Grouping vertical planes into local Manhattan frames and tracking them."""
+
+    group_tol_deg: float = 4.0       # normals parallel/perpendicular within this
+    min_sigma_deg: float = 0.15      # floor on a frame's yaw sigma (model error, levelling)
+    track_gate_deg: float = 8.0      # association gate after rotation prediction
+    max_missed: int = 15             # frames a track survives unseen
+    min_score: float = 0.02          # frames with less wall area are not reported
+
+    def __post_init__(self) -> None:
+        _positive("manhattan", group_tol_deg=self.group_tol_deg, min_sigma_deg=self.min_sigma_deg,
+                  track_gate_deg=self.track_gate_deg)
+
+
+@dataclass
+class FeatureConfig:
+    """Corner detection and frame-to-frame association in the colour image."""
+
+    method: Literal["klt", "orb"] = "klt"
+    max_corners: int = 400
+    quality_level: float = 0.01      # Shi-Tomasi relative quality (klt)
+    min_distance: int = 12           # pixels between corners (klt)
+    block_size: int = 5
+    klt_window: int = 21
+    klt_levels: int = 3
+    fb_check: bool = True            # forward-backward consistency (klt)
+    fb_max_px: float = 1.0
+    orb_features: int = 800
+    orb_max_hamming: int = 64
+    depth_window: int = 1            # depth from a (2w+1)^2 neighbourhood
+    depth_edge_rel: float = 0.03     # reject if the neighbourhood spans more than this (relative)
+    min_depth: float = 0.3
+    max_depth: float = 8.0
+
+    def __post_init__(self) -> None:
+        _positive("features", max_corners=self.max_corners, klt_window=self.klt_window,
+                  orb_features=self.orb_features, depth_edge_rel=self.depth_edge_rel)
+
+
+@dataclass
+class OdometryConfig:
+    """Estimator choice, acceptance and bridging."""
+
+    min_inliers: int = 12            # fewer inliers: the estimator failed
+    min_inlier_ratio: float = 0.3
+    ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
+    ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx
+    ransac_iterations: int = 200
+    seed: int = 0
+    max_step_yaw_deg: float = 40.0   # larger per-frame turns are implausible
+    bridge: Literal["constant_velocity", "zero"] = "constant_velocity"
+    bridge_sigma_xy: float = 1.0     # metres, std of a bridged step
+    bridge_sigma_theta_deg: float = 30.0
+    min_sigma_xy: float = 0.002      # floors on a step's std (unmodelled errors)
+    min_sigma_theta_deg: float = 0.05
+
+
+@dataclass
+class FrontendConfig:
+    levelling: LevellingConfig = field(default_factory=LevellingConfig)
+    planes: PlaneConfig = field(default_factory=PlaneConfig)
+    manhattan: ManhattanConfig = field(default_factory=ManhattanConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)

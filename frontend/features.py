@@ -1,0 +1,203 @@
+"""Corners in the colour image, associated between consecutive frames and lifted to 3-D.
+
+Two interchangeable methods (``FeatureConfig.method``):
+
+* ``"klt"``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
+  checked); survivors are kept and the set is topped up with new corners only where the
+  image has none, so most frames skip detection. The image pyramid of a frame is built
+  once and reused as the "previous" pyramid of the next frame.
+* ``"orb"``: ORB keypoints and descriptors, mutual nearest neighbours in Hamming distance.
+
+Pixel positions are undistorted with the calibration (``cv2.undistortPoints`` when the
+distortion is non-zero) and lifted with the depth of a small neighbourhood, rejecting
+depth edges. Points stay in the camera frame here; levelling is the caller's step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from planar_vo.frontend.config import FeatureConfig
+from planar_vo.io.types import CameraIntrinsics
+
+
+@dataclass
+class FeatureSet:
+    """Corners of one frame.
+
+    ``px``: (N, 2) float32 pixel positions (as measured, distorted). ``xy``: (N, 2) float64
+    undistorted normalised camera coordinates. ``P_cam``: (N, 3) float64 camera-frame points
+    (metres), NaN rows where the depth is missing or on an edge. ``desc``: (N, 32) uint8 ORB
+    descriptors or None (klt).
+    """
+
+    px: np.ndarray
+    xy: np.ndarray
+    P_cam: np.ndarray
+    desc: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.px)
+
+    @property
+    def has_depth(self) -> np.ndarray:
+        """(N,) bool."""
+        return np.isfinite(self.P_cam[:, 2])
+
+
+def undistort(px: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """Normalised camera coordinates (N, 2) float64 of pixels ``px`` (N, 2)."""
+    px = np.asarray(px, dtype=np.float64).reshape(-1, 2)
+    if len(px) == 0:
+        return np.zeros((0, 2))
+    if intrinsics.has_distortion:
+        return cv2.undistortPoints(px.reshape(-1, 1, 2), intrinsics.K,
+                                   np.asarray(intrinsics.distortion, np.float64)).reshape(-1, 2)
+    return np.column_stack([(px[:, 0] - intrinsics.cx) / intrinsics.fx,
+                            (px[:, 1] - intrinsics.cy) / intrinsics.fy])
+
+
+def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfig) -> np.ndarray:
+    """3-D points (N, 3) float64 in the camera frame, NaN where depth is unusable.
+
+    Depth is the median of the valid readings in a ``(2 w + 1)^2`` window around each pixel
+    ``px`` (N, 2); a window whose valid readings spread by more than ``depth_edge_rel`` of
+    that median straddles a depth edge and is rejected, as are windows with fewer than half
+    of their readings valid.
+    """
+    n = len(px)
+    out = np.full((n, 3), np.nan)
+    if n == 0:
+        return out
+    h, w = depth.shape
+    r = config.depth_window
+    cols = np.clip(np.rint(px[:, 0]).astype(np.int64), r, w - 1 - r)
+    rows = np.clip(np.rint(px[:, 1]).astype(np.int64), r, h - 1 - r)
+    off = np.arange(-r, r + 1)
+    win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
+    win = win.reshape(n, -1).astype(np.float64)
+    ok = (win >= config.min_depth) & (win <= config.max_depth)
+    wn = np.where(ok, win, np.nan)
+    cnt = ok.sum(1)
+    good = cnt * 2 > win.shape[1]
+    wg = np.where(good[:, None], wn, 0.0)  # rows with too few readings: dummy zeros
+    with np.errstate(all="ignore"):
+        z = np.nanmedian(wg, axis=1)
+        spread = np.nanmax(wg, axis=1) - np.nanmin(wg, axis=1)
+    good &= np.isfinite(z) & (spread <= config.depth_edge_rel * z)
+    # Points projected outside the image (clipped above) have no depth of their own.
+    inside = (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+    good &= inside
+    out[good, 0] = xy[good, 0] * z[good]
+    out[good, 1] = xy[good, 1] * z[good]
+    out[good, 2] = z[good]
+    return out
+
+
+class FeatureTracker:
+    """Frame-to-frame corner association for one camera.
+
+    :meth:`process` takes each frame once and returns its :class:`FeatureSet` and the
+    matches ``(M, 2) int64`` of indices ``[i_prev, i_curr]`` into the previous and current
+    sets (empty for the first frame).
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, config: FeatureConfig | None = None):
+        self.intrinsics = intrinsics
+        self.config = config or FeatureConfig()
+        c = self.config
+        if c.method not in ("klt", "orb"):
+            raise ValueError(f"features.method must be 'klt' or 'orb', got {c.method!r}")
+        self._prev: FeatureSet | None = None
+        self._prev_pyr = None
+        self._win = (c.klt_window, c.klt_window)
+        self._crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
+        if c.method == "orb":
+            self._orb = cv2.ORB_create(nfeatures=c.orb_features, fastThreshold=12)
+            self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+        self.last_detected = 0  # corners newly detected in the last frame (diagnostics)
+
+    def reset(self) -> None:
+        self._prev = None
+        self._prev_pyr = None
+
+    def process(self, gray: np.ndarray, depth: np.ndarray) -> tuple[FeatureSet, np.ndarray]:
+        """Associate ``gray`` (H, W) uint8 with the previous frame; ``depth`` (H, W) float32 m."""
+        if gray.ndim != 2 or gray.dtype != np.uint8:
+            raise ValueError(f"gray must be (H, W) uint8, got {gray.shape} {gray.dtype}")
+        if self.config.method == "orb":
+            return self._process_orb(gray, depth)
+        return self._process_klt(gray, depth)
+
+    # ----------------------------------------------------------------- KLT
+    def _process_klt(self, gray, depth):
+        c = self.config
+        pyr = gray  # OpenCV's Python binding takes images only, not prebuilt pyramids
+        prev = self._prev
+        matches = np.zeros((0, 2), np.int64)
+        kept_px = np.zeros((0, 2), np.float32)
+        if prev is not None and len(prev):
+            p0 = prev.px.reshape(-1, 1, 2)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._prev_pyr, pyr, p0, None, winSize=self._win,
+                                                 maxLevel=c.klt_levels, criteria=self._crit)
+            ok = st.reshape(-1) == 1
+            if c.fb_check and ok.any():
+                # Backward from the forward result, seeded with the forward motion.
+                p0b, stb, _ = cv2.calcOpticalFlowPyrLK(pyr, self._prev_pyr, p1, p0.copy(), winSize=self._win,
+                                                       maxLevel=c.klt_levels, criteria=self._crit,
+                                                       flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+                fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
+                ok &= (stb.reshape(-1) == 1) & (fb <= c.fb_max_px)
+            p1 = p1.reshape(-1, 2)
+            h, w = gray.shape
+            ok &= (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+            i_prev = np.flatnonzero(ok)
+            kept_px = p1[i_prev].astype(np.float32)
+            matches = np.column_stack([i_prev, np.arange(len(i_prev))]).astype(np.int64)
+        new_px = self._detect_klt(gray, kept_px)
+        self.last_detected = len(new_px)
+        px = np.vstack([kept_px, new_px]) if len(new_px) else kept_px
+        cur = self._make_set(px, depth)
+        self._prev, self._prev_pyr = cur, pyr
+        return cur, matches
+
+    def _detect_klt(self, gray, existing):
+        """New Shi-Tomasi corners away from ``existing`` (K, 2), up to ``max_corners`` in all."""
+        c = self.config
+        want = c.max_corners - len(existing)
+        # Top up only when the set has thinned noticeably: detection dominates KLT's cost.
+        if want < 0.25 * c.max_corners and len(existing):
+            return np.zeros((0, 2), np.float32)
+        mask = None
+        if len(existing):
+            mask = np.full(gray.shape, 255, np.uint8)
+            for x, y in np.rint(existing).astype(np.int32):
+                cv2.circle(mask, (int(x), int(y)), c.min_distance, 0, -1)
+        pts = cv2.goodFeaturesToTrack(gray, maxCorners=want, qualityLevel=c.quality_level,
+                                      minDistance=c.min_distance, mask=mask, blockSize=c.block_size)
+        if pts is None:
+            return np.zeros((0, 2), np.float32)
+        return pts.reshape(-1, 2).astype(np.float32)
+
+    # ----------------------------------------------------------------- ORB
+    def _process_orb(self, gray, depth):
+        c = self.config
+        kps, desc = self._orb.detectAndCompute(gray, None)
+        px = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        cur = self._make_set(px, depth, desc)
+        matches = np.zeros((0, 2), np.int64)
+        prev = self._prev
+        if prev is not None and prev.desc is not None and desc is not None and len(prev) and len(cur):
+            ms = self._bf.match(prev.desc, desc)
+            pairs = [(m.queryIdx, m.trainIdx) for m in ms if m.distance <= c.orb_max_hamming]
+            if pairs:
+                matches = np.array(pairs, np.int64)
+        self.last_detected = len(px)
+        self._prev = cur
+        return cur, matches
+
+    def _make_set(self, px, depth, desc=None) -> FeatureSet:
+        xy = undistort(px, self.intrinsics)
+        return FeatureSet(px=px, xy=xy, P_cam=lift(px, xy, depth, self.config), desc=desc)

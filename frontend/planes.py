@@ -1,0 +1,336 @@
+"""Planes from inverse-depth histograms (paper Sec. 2.1), in the levelled camera frame.
+
+For a plane ``n . X = d`` and a pixel with levelled normalised coordinates
+``(x, y) = (X/Z, Y/Z)``, the inverse depth is linear: ``1/Z = (n_x x + n_y y + n_z) / d``.
+Two consequences drive the detector:
+
+* a horizontal plane (floor, ceiling) has one depth per levelled image *row*, a
+  vertical plane (wall) one depth per levelled image *column*: in the histograms over
+  (row, 1/Z) and (column, 1/Z) each such plane is a sharp line, everything else a smear;
+* fitting ``q = n / d`` to ``1/Z = q . (x, y, 1)`` is linear least squares, and
+  inverse-depth noise of RGB-D sensors is roughly uniform, so the fit is well posed.
+
+Detection per family: build the histogram (``np.bincount``), keep each row's / column's
+local inverse-depth peaks, let those cells vote for the plane's orientation angle and
+inverse distance (a Hough transform over a few hundred cells, not the point cloud), then
+fit ``q`` by least squares to the subsampled pixels near each peak and refit twice. No
+RANSAC over the point cloud.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from planar_vo.frontend.config import PlaneConfig
+from planar_vo.io.types import CameraIntrinsics
+
+FLOOR, CEILING, HORIZONTAL, WALL = "floor", "ceiling", "horizontal", "wall"
+
+
+@dataclass
+class Plane:
+    """One detected plane in the levelled camera frame ``lev`` (y down).
+
+    ``normal``: (3,) float64 unit vector from the camera towards the plane, so that
+    ``normal . X_lev = offset`` with ``offset`` > 0 the camera-plane distance (m).
+    ``support``: fraction of the (subsampled) image on the plane; ``n_points`` the count.
+    ``rms``: RMS inverse-depth residual (1/m), ``rms_rel`` relative depth. ``cov_q``: (3, 3) covariance of the fit
+    parameters ``q = normal / offset``. ``inliers``: (K,) int64 indices into the
+    flattened subsampled grid (see :attr:`PlaneDetector.grid_shape`).
+    """
+
+    kind: str
+    normal: np.ndarray
+    offset: float
+    support: float
+    n_points: int
+    rms: float
+    cov_q: np.ndarray
+    inliers: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, np.int64))
+    rms_rel: float = 0.0  # RMS relative depth residual
+
+    @property
+    def yaw(self) -> float:
+        """Heading (rad) of the horizontal part of the normal in the 2-D frame of ``lev``
+        (x = forward = z_lev, y = left = -x_lev, counter-clockwise positive)."""
+        return math.atan2(-self.normal[0], self.normal[2])
+
+    @property
+    def yaw_sigma(self) -> float:
+        """Standard deviation (rad) of :attr:`yaw` propagated from ``cov_q``."""
+        q = self.normal / self.offset
+        r2 = q[0] ** 2 + q[2] ** 2
+        J = np.array([-q[2] / r2, 0.0, q[0] / r2])
+        return float(math.sqrt(max(J @ self.cov_q @ J, 0.0)))
+
+    @property
+    def tilt(self) -> float:
+        """Angle (rad) between the normal and the horizontal plane (0 for a vertical wall)."""
+        return math.asin(min(1.0, abs(self.normal[1])))
+
+
+@dataclass
+class PlaneDetection:
+    """All planes of one depth image. ``floor`` is also the first of ``horizontals``."""
+
+    floor: Plane | None
+    horizontals: list[Plane]
+    walls: list[Plane]
+    n_valid: int          # subsampled pixels with a usable depth
+    n_total: int          # subsampled pixels
+
+    @property
+    def wall_fraction(self) -> float:
+        return float(sum(w.support for w in self.walls))
+
+
+def normalised_grid(intrinsics: CameraIntrinsics, stride: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Undistorted normalised rays of the subsampled pixel grid.
+
+    Returns ``(xy (M, 2) float64, offset, (h, w))``: the grid takes pixels
+    ``depth[o::stride, o::stride]`` with ``o = stride // 2``, flattened row-major.
+    """
+    o = stride // 2
+    us = np.arange(o, intrinsics.width, stride, dtype=np.float64)
+    vs = np.arange(o, intrinsics.height, stride, dtype=np.float64)
+    uu, vv = np.meshgrid(us, vs)
+    px = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    if intrinsics.has_distortion:
+        xy = cv2.undistortPoints(px.reshape(-1, 1, 2), intrinsics.K,
+                                 np.asarray(intrinsics.distortion, np.float64)).reshape(-1, 2)
+    else:
+        xy = np.stack([(px[:, 0] - intrinsics.cx) / intrinsics.fx,
+                       (px[:, 1] - intrinsics.cy) / intrinsics.fy], axis=1)
+    return xy.astype(np.float64), o, (len(vs), len(us))
+
+
+class PlaneDetector:
+    """Inverse-depth histogram plane detector for one camera.
+
+    Build once per camera; call :meth:`set_levelling` when ``R_lev_cam`` changes and
+    :meth:`detect` per depth image. The per-pixel levelled rays are cached, so a frame
+    costs one strided copy of the depth, a few ``bincount`` calls and small fits.
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, config: PlaneConfig | None = None,
+                 R_lev_cam: np.ndarray | None = None):
+        self.intrinsics = intrinsics
+        self.config = config or PlaneConfig()
+        self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
+        self.n_total = self._xy_cam.shape[0]
+        step = math.radians(self.config.hough_step_deg)
+        self._wall_angles = np.arange(-math.radians(130), math.radians(130) + 1e-9, step)
+        self._horiz_angles = {}
+        for levelled, tilt_deg in ((True, self.config.horizontal_tilt_deg), (False, self.config.unlevelled_tilt_deg)):
+            tilt = math.radians(tilt_deg)
+            down = np.arange(math.pi / 2 - tilt, math.pi / 2 + tilt + 1e-9, step)
+            self._horiz_angles[levelled] = np.concatenate([down, -down[::-1]])  # floor- and ceiling-like
+        self.set_levelling(np.eye(3) if R_lev_cam is None else R_lev_cam)
+
+    # ------------------------------------------------------------------ levelling
+    def set_levelling(self, R_lev_cam: np.ndarray) -> None:
+        """Cache levelled rays for ``R_lev_cam`` (3, 3)."""
+        R = np.asarray(R_lev_cam, dtype=np.float64)
+        if R.shape != (3, 3):
+            raise ValueError(f"R_lev_cam must be (3, 3), got {R.shape}")
+        self.R_lev_cam = R
+        rays = np.column_stack([self._xy_cam, np.ones(self.n_total)]) @ R.T
+        ok = rays[:, 2] > 0.05
+        rz = np.where(ok, rays[:, 2], 1.0)
+        self._ray_ok = ok
+        self._zscale = rz                      # Z_lev = Z_cam * zscale
+        self._x = rays[:, 0] / rz              # levelled normalised coordinates
+        self._y = rays[:, 1] / rz
+        c = self.config
+        xs, ys = self._x[ok], self._y[ok]
+        self._xr = (xs.min(), xs.max() + 1e-9)
+        self._yr = (ys.min(), ys.max() + 1e-9)
+        self._wr = (1.0 / c.max_depth, 1.0 / c.min_depth)
+        # Pre-computed bins of the image axes (the inverse-depth bin changes per frame).
+        nb = c.n_image_bins
+        self._xbin = np.clip(((self._x - self._xr[0]) / (self._xr[1] - self._xr[0]) * nb).astype(np.int64), 0, nb - 1)
+        self._ybin = np.clip(((self._y - self._yr[0]) / (self._yr[1] - self._yr[0]) * nb).astype(np.int64), 0, nb - 1)
+
+    # ------------------------------------------------------------------ detection
+    def inverse_depth(self, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Levelled inverse depth of the grid: ``(idx (V,) int64, w (V,) float64)`` for valid pixels."""
+        c = self.config
+        if depth.ndim != 2 or depth.shape != (self.intrinsics.height, self.intrinsics.width):
+            raise ValueError(f"depth must be ({self.intrinsics.height}, {self.intrinsics.width}), got {depth.shape}")
+        z = depth[self._o::c.stride, self._o::c.stride].ravel()
+        valid = (z >= c.min_depth) & (z <= c.max_depth) & self._ray_ok
+        idx = np.flatnonzero(valid)
+        w = 1.0 / (z[idx].astype(np.float64) * self._zscale[idx])
+        return idx, w
+
+    def detect(self, depth: np.ndarray, floor_offset_hint: float | None = None,
+               levelled: bool = True, walls: bool = True) -> PlaneDetection:
+        """Detect horizontal planes (floor first) and walls in ``depth`` (H, W) float32 metres.
+
+        ``floor_offset_hint``: expected camera height (m); when given, the floor is the
+        strongest downward-facing plane within 30 % of it. ``levelled=False`` widens the
+        floor search to ``unlevelled_tilt_deg`` (tilt not yet known); ``walls=False``
+        stops after the horizontal planes.
+        """
+        c = self.config
+        idx, w = self.inverse_depth(depth)
+        tilt = c.horizontal_tilt_deg if levelled else c.unlevelled_tilt_deg
+        horizontals = self._detect_family(idx, w, self._ybin, self._y, self._horiz_angles[levelled],
+                                          vertical=False, max_planes=3, max_tilt_deg=tilt)
+        floor = None
+        for p in horizontals:
+            if p.normal[1] > 0 and (floor_offset_hint is None or abs(p.offset - floor_offset_hint) < 0.3 * floor_offset_hint):
+                floor = p
+                break
+        for p in horizontals:
+            if p is floor:
+                p.kind = FLOOR
+            elif p.normal[1] < 0 and (floor is None or p.offset > 0.3):
+                p.kind = CEILING
+        if floor is not None:
+            horizontals.remove(floor)
+            horizontals.insert(0, floor)
+        keep = np.ones(len(idx), bool)
+        if horizontals:
+            taken = np.concatenate([p.inliers for p in horizontals])
+            keep[np.searchsorted(idx, taken)] = False
+        found = []
+        if walls:
+            found = self._detect_family(idx[keep], w[keep], self._xbin, self._x, self._wall_angles,
+                                        vertical=True, max_planes=c.max_walls, max_tilt_deg=c.wall_tilt_deg)
+        return PlaneDetection(floor, horizontals, found, len(idx), self.n_total)
+
+    # ------------------------------------------------------------------ internals
+    def _detect_family(self, idx, w, ubin_all, u_all, angles, vertical: bool, max_planes: int,
+                       max_tilt_deg: float) -> list[Plane]:
+        c = self.config
+        planes: list[Plane] = []
+        min_pts = max(10, int(c.min_support * self.n_total))
+        if len(idx) < min_pts:
+            return planes
+        nb, nw = c.n_image_bins, c.n_invdepth_bins
+        w0, w1 = self._wr
+        wb = np.minimum(((w - w0) * (nw / (w1 - w0))).astype(np.int64), nw - 1)
+        u = u_all[idx]
+        flat = ubin_all[idx] * nw + wb
+        cnt = np.bincount(flat, minlength=nb * nw).reshape(nb, nw).astype(np.float64)
+        # Per row/column: local maxima of the count summed over 3 inverse-depth bins.
+        c3 = _box3(cnt)
+        left = np.empty_like(c3)
+        left[:, 0] = -1.0
+        left[:, 1:] = c3[:, :-1]
+        right = np.empty_like(c3)
+        right[:, -1] = -1.0
+        right[:, :-1] = c3[:, 1:]
+        ci, cj = np.nonzero((c3 >= left) & (c3 > right) & (c3 >= c.min_cell_count))
+        if len(ci) == 0:
+            return planes
+        # Cell means of w and u over the same 3 bins (bincount only where needed).
+        sw = np.bincount(flat, weights=w, minlength=nb * nw).reshape(nb, nw)
+        su = np.bincount(flat, weights=u, minlength=nb * nw).reshape(nb, nw)
+        cw = c3[ci, cj]
+        jl, jr = np.maximum(cj - 1, 0), np.minimum(cj + 1, nw - 1)
+        cell_w = (sw[ci, cj] + sw[ci, jl] * (cj > 0) + sw[ci, jr] * (cj < nw - 1)) / cw
+        cell_u = (su[ci, cj] + su[ci, jl] * (cj > 0) + su[ci, jr] * (cj < nw - 1)) / cw
+        # Hough vote: each cell, for each orientation a, proposes log(1/d) = log w - log(u sin a + cos a).
+        den = (cell_u[:, None] * np.sin(angles)[None, :] + np.cos(angles)[None, :]).astype(np.float32)
+        ok = den > 0.05
+        lbin_w = math.log1p(c.inlier_rel_depth)
+        lo = math.log(1.0 / 30.0)
+        nd = int(math.ceil((math.log(1.0 / 0.1) - lo) / lbin_w))
+        logd = (np.log(cell_w).astype(np.float32) - lo)[:, None] - np.log(np.where(ok, den, 1.0))
+        dbin = (logd * np.float32(1.0 / lbin_w)).astype(np.int64)
+        ok &= (logd >= 0) & (dbin < nd)
+        na = len(angles)
+        vote_idx = np.where(ok, np.arange(na)[None, :] * nd + dbin, -1)
+        alive = np.ones(len(ci), bool)
+        pool = np.ones(len(idx), bool)  # raw points not yet explained
+        xs, ys = self._x[idx], self._y[idx]
+        tol = c.inlier_rel_depth
+        max_tilt = math.sin(math.radians(max_tilt_deg))
+        failures = 0
+        while len(planes) < max_planes and failures < 2 and alive.any():
+            vi = vote_idx[alive]
+            m = vi >= 0
+            acc = np.bincount(vi[m], weights=np.broadcast_to(cw[alive][:, None], vi.shape)[m],
+                              minlength=na * nd)
+            best = int(np.argmax(acc))
+            if acc[best] < 0.5 * min_pts:
+                break  # what is left cannot make a plane of the minimum support
+            ai, di = divmod(best, nd)
+            a = angles[ai]
+            inv_d = math.exp(lo + (di + 0.5) * lbin_w)
+            # The cells this line explains are spent, whether or not the fit is accepted.
+            pred_cell = inv_d * (cell_u * math.sin(a) + math.cos(a))
+            alive &= np.abs(cell_w - pred_cell) > 1.5 * tol * cell_w
+            # Least squares on the raw points near the line, then refits of the full plane.
+            pred = inv_d * (u * math.sin(a) + math.cos(a))
+            band = np.flatnonzero(pool & (np.abs(w - pred) < 3.0 * tol * w))
+            if len(band) < min_pts:
+                failures += 1
+                continue
+            sel = np.abs(w[band] - pred[band]) < 2.0 * tol * w[band]
+            plane = self._fit(xs[band], ys[band], w[band], sel, tol)
+            n = None if plane is None else plane.normal
+            if (plane is None or plane.n_points < min_pts
+                    or (abs(n[1]) if vertical else math.hypot(n[0], n[2])) > max_tilt
+                    or plane.rms_rel > 0.45 * tol):
+                # Too small, not vertical/horizontal, or residuals spread evenly over the
+                # band (relative RMS -> tol / sqrt(3)): a line through clutter, not a surface.
+                failures += 1
+                continue
+            plane.kind = WALL if vertical else HORIZONTAL
+            # Points within twice the tolerance are explained (noise tails would otherwise
+            # seed parallel ghost planes); the plane keeps its strict inliers.
+            q = plane.normal / plane.offset
+            pred = xs[band] * q[0] + ys[band] * q[1] + q[2]
+            pool[band[np.abs(w[band] - pred) < 2.0 * tol * w[band]]] = False
+            plane.inliers = idx[band[plane.inliers]]
+            planes.append(plane)
+        return planes
+
+    def _fit(self, x, y, w, sel, tol) -> Plane | None:
+        """Least-squares ``w = q . (x, y, 1)`` over ``sel``, refitted on its own inliers.
+
+        ``x, y, w``: (K,) candidate points; returns a Plane whose ``inliers`` index them.
+        """
+        A = np.column_stack([x, y, np.ones(len(x))])
+        q = None
+        for it in range(self.config.refit_iterations + 1):
+            As, bs = A[sel], w[sel]
+            if len(bs) < 10:
+                return None
+            AtA = As.T @ As
+            try:
+                q = np.linalg.solve(AtA, As.T @ bs)
+            except np.linalg.LinAlgError:
+                return None
+            r_all = w - A @ q
+            sel = np.abs(r_all) < tol * w  # relative depth error within tol
+        k = np.flatnonzero(sel)
+        if len(k) < 10:
+            return None
+        Ak = A[k]
+        r = r_all[k]
+        s2 = float(r @ r) / max(len(k) - 3, 1)
+        rms_rel = float(np.sqrt(np.mean((r / w[k]) ** 2)))
+        try:
+            cov = s2 * np.linalg.inv(Ak.T @ Ak)
+        except np.linalg.LinAlgError:
+            return None
+        nq = float(np.linalg.norm(q))
+        if not nq > 0:
+            return None
+        return Plane(kind="", normal=q / nq, offset=1.0 / nq, support=len(k) / self.n_total,
+                     n_points=len(k), rms=math.sqrt(s2), cov_q=cov, inliers=k, rms_rel=rms_rel)
+
+
+def _box3(a: np.ndarray) -> np.ndarray:
+    """Sum over 3 neighbouring bins along the last axis (zero padded)."""
+    out = a.copy()
+    out[:, 1:] += a[:, :-1]
+    out[:, :-1] += a[:, 1:]
+    return out
