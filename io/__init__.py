@@ -1,7 +1,8 @@
 """Data layer: RGB-D log readers (MCAP, TUM folders) and writers, trajectory I/O."""
 from planar_vo.io.atomic import atomic_path
+from planar_vo.io.log import LogSummary, RGBDLog, open_log
 from planar_vo.io.mcap_writer import LogTopics, RGBDLogWriter
 from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
-__all__ = ["CameraIntrinsics", "LogTopics", "Mount", "RGBDFrame", "RGBDLogWriter", "Trajectory",
-           "atomic_path"]
+__all__ = ["CameraIntrinsics", "LogSummary", "LogTopics", "Mount", "RGBDFrame", "RGBDLog",
+           "RGBDLogWriter", "Trajectory", "atomic_path", "open_log"]

@@ -5,8 +5,9 @@ mcap_ros2) and protobuf objects for Foxglove. Parsers accept a decoded message o
 either profile (told apart by the schema name) and return neutral records, so the
 reader has one code path for both.
 
-Timestamps: ``stamp`` floats are seconds; they are split into ``(sec, nanosec)`` so a
-float stamp survives the round trip bit-exactly (see :func:`stamp_to_sec_nsec`).
+Timestamps: ``stamp`` floats are seconds, split into ``(sec, nanosec)`` with the fraction
+rounded to the nanosecond. Epoch stamps (~1.7e9 s, float spacing ~2e-7 s) therefore come
+back bit-exactly; small stamps (e.g. 1000.0333333333333) come back to within 0.5 ns.
 """
 from __future__ import annotations
 

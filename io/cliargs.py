@@ -1,0 +1,53 @@
+"""Command-line flags for choosing and calibrating an RGB-D log, shared by commands.
+
+``add_log_arguments(parser)`` adds the positional ``log`` and the topic, intrinsics and
+sync flags; ``open_log_from_args(args)`` opens the log with them applied.
+"""
+from __future__ import annotations
+
+import argparse
+
+from planar_vo.errors import InputError
+from planar_vo.io.log import INTRINSICS_FLAGS, RGBDLog, open_log
+from planar_vo.io.types import CameraIntrinsics
+
+
+def add_log_arguments(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
+    if positional:
+        parser.add_argument("log", help="MCAP log or TUM RGB-D folder")
+    g = parser.add_argument_group("input selection")
+    g.add_argument("--color-topic", help="colour image topic (default: found automatically)")
+    g.add_argument("--depth-topic", help="depth image topic (default: found automatically)")
+    g.add_argument("--info-topic", help="CameraInfo / CameraCalibration topic (default: found automatically)")
+    g.add_argument("--sync-tolerance", type=float, default=0.02, metavar="S",
+                   help="largest colour/depth stamp difference paired, seconds (default 0.02)")
+    k = parser.add_argument_group("intrinsics (override the log's calibration; give all four)")
+    for name in ("fx", "fy", "cx", "cy"):
+        k.add_argument(f"--{name}", type=float, metavar="PX")
+    k.add_argument("--distortion", type=float, nargs="+", metavar="D",
+                   help="plumb_bob k1 k2 p1 p2 [k3] (default: none)")
+
+
+def open_log_from_args(args: argparse.Namespace) -> RGBDLog:
+    """Open ``args.log`` honouring the flags of :func:`add_log_arguments`."""
+    log = open_log(args.log, color_topic=getattr(args, "color_topic", None),
+                   depth_topic=getattr(args, "depth_topic", None),
+                   info_topic=getattr(args, "info_topic", None),
+                   sync_tolerance=getattr(args, "sync_tolerance", 0.02))
+    try:
+        values = [getattr(args, n, None) for n in ("fx", "fy", "cx", "cy")]
+        dist = getattr(args, "distortion", None)
+        if any(v is not None for v in values) or dist:
+            if any(v is None for v in values):
+                raise InputError(f"give all four of {INTRINSICS_FLAGS} (missing "
+                                 f"{', '.join('--' + n for n, v in zip(('fx', 'fy', 'cx', 'cy'), values) if v is None)})")
+            if dist is not None and len(dist) not in (4, 5):
+                raise InputError(f"--distortion takes 4 or 5 plumb_bob coefficients, got {len(dist)}")
+            if values[0] <= 0 or values[1] <= 0:
+                raise InputError(f"--fx and --fy must be positive, got {values[0]} and {values[1]}")
+            w, h = log.image_size
+            log.set_intrinsics(CameraIntrinsics(w, h, *values, tuple(dist) if dist else (0.0,) * 5))
+    except BaseException:
+        log.close()
+        raise
+    return log

@@ -1,0 +1,646 @@
+"""Synthetic RGB-D corridor logs with exact ground truth.
+
+Scenes (:mod:`planar_vo.io.synth_scene`) are triangle meshes of floor, walls, ceiling,
+doors, posters, boxes and pillars, ray cast on the CPU with open3d's
+``RaycastingScene``; colour comes from procedural textures
+(:mod:`planar_vo.io.synth_texture`) sampled at the hit point's surface coordinates, so it
+is fixed to the world and trackable. The camera is a Kinect v2 at qhd on a robot driving
+a smooth planar path; frames follow :mod:`planar_vo.geometry` (optical ``cam``, REP 103
+``base`` on the floor, world z up).
+
+Sensor model (Kinect v2-like; all switchable in :class:`SynthConfig`):
+
+* depth is the optical-axis ``z`` of the hit, with Gaussian noise of standard deviation
+  ``sigma(z) = depth_sigma0 + depth_sigma2 * z**2`` (default 1.5 mm + 1.5 mm * z^2, i.e.
+  3 mm at 1 m, 15 mm at 3 m), rounded to whole millimetres, kept only inside
+  ``[depth_min, depth_max]`` (0.5 - 4.5 m, else 0);
+* holes at depth discontinuities (the far-side pixel, and with probability 1/2 the next
+  one too), at grazing incidence (``|cos| < depth_min_cos``), random single-pixel dropouts
+  (``dropout_rate``) and a few small dropout blobs;
+* colour: texture x world-fixed shading (ambient + a fixed sky light + ceiling lamp
+  pools, Lambertian, so brightness is constant across views), mild vignetting, Gaussian
+  image noise of ``image_noise`` grey levels.
+
+Everything is deterministic for ``seed``: the scene and textures come from it, and each
+frame's noise from ``(seed, frame index)``, so any subset of frames renders identically.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field, fields
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from planar_vo.errors import ConfigError, InputError
+from planar_vo.geometry import mount_rotation, se2_to_matrix, wrap_angle, wrap_quarter
+from planar_vo.io.synth_scene import (LABEL_FLOOR, LABEL_WALL, LAYOUTS, MAT_BOX, MAT_CEILING, MAT_CONCRETE,
+                                      MAT_DOOR, MAT_FLOOR, MAT_POSTER, MAT_WALL, Scene, build_scene,
+                                      min_path_length)
+from planar_vo.io.synth_texture import (FLAT_COLORS, TEX_ATLAS, TEX_CEILING, TEX_CONCRETE, TEX_FLOOR, TEX_WALL,
+                                        TEXEL, TEXTURE_LEVELS, N_BOXES, N_DOORS, N_POSTERS, TextureSet,
+                                        build_textures)
+from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
+
+__all__ = ["SynthConfig", "SynthFrame", "SynthRenderer", "render_sequence", "synth_trajectory",
+           "synth_intrinsics", "synth_mount", "write_synth_log", "LAYOUTS", "TEXTURE_LEVELS"]
+
+_MAT_TEX = {MAT_FLOOR: TEX_FLOOR, MAT_WALL: TEX_WALL, MAT_CEILING: TEX_CEILING, MAT_CONCRETE: TEX_CONCRETE,
+            MAT_POSTER: TEX_ATLAS, MAT_DOOR: TEX_ATLAS, MAT_BOX: TEX_ATLAS}
+_MAT_FLAT = {MAT_FLOOR: "floor", MAT_WALL: "wall", MAT_CEILING: "ceiling", MAT_CONCRETE: "concrete",
+             MAT_POSTER: "wall", MAT_DOOR: "wall", MAT_BOX: "box"}
+
+
+@dataclass
+class SynthConfig:
+    """Everything that defines a synthetic sequence (defaults: Kinect v2 qhd on a small robot).
+
+    Trajectory: ``n_frames`` at ``rate_hz``, cruising at ``speed`` m/s after a
+    ``ramp_s`` second start (and before a same-length stop), on the layout's centre line
+    with corners rounded to ``max(turn_radius, speed / max_yaw_rate)`` and a smooth
+    sideways weave of amplitude ``weave`` metres. Mount: base_link on the floor, the
+    optical centre ``cam_x`` forward and ``cam_height`` up, tilted by ``pitch_deg``
+    (down) and ``roll_deg`` (REP 103, :func:`planar_vo.geometry.mount_rotation`).
+    """
+
+    layout: str = "lturn"
+    seed: int = 0
+    n_frames: int = 300
+    rate_hz: float = 10.0
+    speed: float = 0.4
+    width: int = 960
+    height: int = 540
+    fx: float = 540.7
+    fy: float = 540.7
+    cx: float = 479.5
+    cy: float = 269.5
+    cam_height: float = 0.8
+    pitch_deg: float = 10.0
+    roll_deg: float = 2.0
+    cam_x: float = 0.1
+    texture: str = "medium"
+    depth_noise: bool = True
+    # trajectory
+    ramp_s: float = 1.0
+    turn_radius: float = 0.9
+    max_yaw_rate: float = 0.6
+    weave: float = 0.12
+    weave_wavelength: float = 5.0
+    start_stamp: float = 1_700_000_000.0
+    # scene
+    corridor_width: float = 2.0
+    ceiling_height: float = 2.6
+    # depth sensor
+    depth_min: float = 0.5
+    depth_max: float = 4.5
+    depth_sigma0: float = 0.0015
+    depth_sigma2: float = 0.0015
+    depth_edge_holes: bool = True
+    depth_min_cos: float = 0.1
+    dropout_rate: float = 0.001
+    dropout_blobs: float = 1.0
+    # colour
+    image_noise: float = 2.0
+    vignetting: float = 0.15
+    # ground truth
+    min_wall_fraction: float = 0.002
+
+    def __post_init__(self) -> None:
+        def bad(name: str, why: str):
+            raise ConfigError(f"SynthConfig.{name}: {why}, got {getattr(self, name)!r}")
+        if self.layout not in LAYOUTS:
+            bad("layout", f"must be one of {', '.join(LAYOUTS)}")
+        if self.texture not in TEXTURE_LEVELS:
+            bad("texture", f"must be one of {', '.join(TEXTURE_LEVELS)}")
+        if self.n_frames < 2:
+            bad("n_frames", "must be at least 2")
+        for name in ("rate_hz", "speed", "fx", "fy", "turn_radius", "max_yaw_rate", "corridor_width"):
+            if not getattr(self, name) > 0:
+                bad(name, "must be positive")
+        if self.width < 8 or self.height < 8:
+            bad("width" if self.width < 8 else "height", "image must be at least 8 x 8 pixels")
+        if not 0.1 <= self.cam_height <= self.ceiling_height - 0.2:
+            bad("cam_height", f"must be between 0.1 m and the ceiling minus 0.2 m ({self.ceiling_height - 0.2:.2f})")
+        if not -45.0 <= self.pitch_deg <= 60.0:
+            bad("pitch_deg", "must be within [-45, 60] degrees")
+        if not -30.0 <= self.roll_deg <= 30.0:
+            bad("roll_deg", "must be within [-30, 30] degrees")
+        if not 0.0 < self.depth_min < self.depth_max:
+            bad("depth_max", "need 0 < depth_min < depth_max")
+        if self.weave < 0 or self.weave > 0.25 * self.corridor_width:
+            bad("weave", "must be within [0, corridor_width / 4]")
+        if self.ramp_s < 0:
+            bad("ramp_s", "must be >= 0")
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.n_frames - 1) / self.rate_hz
+
+    @property
+    def path_length(self) -> float:
+        """Metres driven (trapezoidal speed profile)."""
+        return self.speed * (self.duration - self._ramp)
+
+    @property
+    def _ramp(self) -> float:
+        return min(self.ramp_s, self.duration / 2.0)
+
+    def at_resolution(self, width: int, height: int) -> "SynthConfig":
+        """The same sequence seen by the same camera resampled to ``width`` x ``height``."""
+        k = synth_intrinsics(self).scaled(width, height)
+        from dataclasses import replace
+        return replace(self, width=width, height=height, fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)
+
+
+@dataclass
+class SynthFrame:
+    """One rendered frame with its ground truth.
+
+    ``rgbd``: colour (H, W, 3) uint8 BGR, depth (H, W) float32 metres (0 invalid).
+    ``T_world_cam``: (4, 4) float64 pose of the optical frame in the world (z up).
+    ``pose_world_base``: (3,) float64 SE(2) ``(x, y, theta)`` of base_link.
+    ``truth``: ``wall_fraction`` / ``floor_fraction`` (image fractions of in-range wall /
+    floor pixels), ``floor_normal_cam`` (3,) (up), ``manhattan_yaws_base`` (list, dominant
+    first, wrapped to [-pi/4, pi/4)), ``manhattan_scores`` (their wall fractions),
+    ``manhattan_ids`` (layout frame ids), ``labels`` (H, W) uint8 (0 none or out of depth
+    range, 1 floor, 2 wall incl. doors/posters, 3 ceiling, 4 box/pillar), ``depth_true``
+    (H, W) float32 noise-free z of every hit (0 where the ray hits nothing).
+    """
+
+    rgbd: RGBDFrame
+    T_world_cam: np.ndarray
+    pose_world_base: np.ndarray
+    truth: dict = field(default_factory=dict)
+
+
+def synth_intrinsics(cfg: SynthConfig) -> CameraIntrinsics:
+    """Pinhole intrinsics of the synthetic camera (no distortion)."""
+    return CameraIntrinsics(cfg.width, cfg.height, cfg.fx, cfg.fy, cfg.cx, cfg.cy)
+
+
+def synth_mount(cfg: SynthConfig) -> Mount:
+    """``T_base_cam``: optical frame at ``(cam_x, 0, cam_height)`` in base_link, REP 103 tilt."""
+    T = np.eye(4)
+    T[:3, :3] = mount_rotation(math.radians(cfg.pitch_deg), math.radians(cfg.roll_deg))
+    T[:3, 3] = (cfg.cam_x, 0.0, cfg.cam_height)
+    return Mount(T, parent_frame="base_link", child_frame="kinect2_rgb_optical_frame")
+
+
+def _scene_for(cfg: SynthConfig) -> Scene:
+    radius = max(cfg.turn_radius, cfg.speed / cfg.max_yaw_rate)
+    L = cfg.path_length
+    need = min_path_length(cfg.layout, radius, cfg.corridor_width)
+    if L < need:
+        frames = int(math.ceil((need / cfg.speed + cfg.ramp_s) * cfg.rate_hz)) + 1
+        raise ConfigError(f"SynthConfig.n_frames: layout {cfg.layout!r} needs at least {need:.1f} m of path, "
+                          f"{cfg.n_frames} frames at {cfg.speed} m/s give {L:.1f} m; use n_frames >= {frames}")
+    return build_scene(cfg.layout, L, cfg.seed, corridor_width=cfg.corridor_width,
+                       ceiling_height=cfg.ceiling_height, turn_radius=radius,
+                       n_posters=N_POSTERS, n_doors=N_DOORS, n_box_designs=N_BOXES)
+
+
+def _trajectory(cfg: SynthConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(cfg.n_frames) / cfg.rate_hz
+    T, r, v = cfg.duration, cfg._ramp, cfg.speed
+    # trapezoidal speed: accelerate over r seconds, cruise, stop over the last r seconds
+    if r > 0:
+        s = np.where(t < r, 0.5 * v / r * t ** 2,
+                     np.where(t <= T - r, 0.5 * v * r + v * (t - r), v * (T - r) - 0.5 * v / r * (T - t) ** 2))
+    else:
+        s = v * t
+    S = cfg.path_length
+    s = s * (scene.path.length / S)  # exact arc length (closes the loop to rounding)
+    c, head, kappa = scene.path.evaluate(s)
+    # sideways weave d(s); a whole number of periods on a closed path so the loop closes
+    rng = np.random.default_rng([int(cfg.seed), 2029])
+    n_per = max(1, int(round(scene.path.length / cfg.weave_wavelength)))
+    k = 2.0 * np.pi * n_per / scene.path.length
+    phase = rng.uniform(0.0, 2.0 * np.pi)
+    d = cfg.weave * np.sin(k * s + phase)
+    dd = cfg.weave * k * np.cos(k * s + phase)
+    nrm = np.stack([-np.sin(head), np.cos(head)], -1)
+    xy = c + d[:, None] * nrm
+    # heading of p(s) = c(s) + d(s) n(s): p' = t (1 - kappa d) + d' n
+    theta = wrap_angle(head + np.arctan2(dd, 1.0 - kappa * d))
+    poses = np.column_stack([xy, theta])
+    return cfg.start_stamp + t, poses
+
+
+def synth_trajectory(cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth without rendering: ``stamps`` (N,) float64 s, ``poses_world_base`` (N, 3)."""
+    return _trajectory(cfg, _scene_for(cfg))
+
+
+# ---------------------------------------------------------------------------- renderer
+
+class SynthRenderer:
+    """Ray casts one scene from arbitrary base poses. Build once, call :meth:`render` per frame.
+
+    Pixels are processed grouped by the surface they hit (a radix sort of the surface id
+    image), so per-surface parameters are scalars and each material's texture is sampled
+    in one call.
+    """
+
+    def __init__(self, cfg: SynthConfig, scene: Scene | None = None, textures: TextureSet | None = None):
+        import open3d as o3d
+
+        self.cfg = cfg
+        self.scene = scene if scene is not None else _scene_for(cfg)
+        self.textures = textures if textures is not None else build_textures(cfg.texture, cfg.seed)
+        self.mount = synth_mount(cfg)
+        self.intrinsics = synth_intrinsics(cfg)
+        sc = self.scene
+        # surfaces ordered by texture, so each texture's pixels are one contiguous range
+        order = sorted(range(len(sc.surfaces)), key=lambda i: (_MAT_TEX[sc.surfaces[i].material], i))
+        self.surfaces = [sc.surfaces[i] for i in order]
+        S = len(self.surfaces)
+        if S >= 32767:
+            raise ValueError(f"scene has {S} surfaces; at most 32766 are supported")
+        sc_sorted = Scene(sc.layout, self.surfaces, sc.manhattan_headings, sc.path, sc.lamps,
+                          sc.ceiling_height, sc.bounds)
+        V, F, tri_surface = sc_sorted.mesh()
+        self._rc = o3d.t.geometry.RaycastingScene()
+        self._rc.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
+        self._tri_surface = np.append(tri_surface, S).astype(np.int16)  # last entry: miss
+        self._n_tri = len(tri_surface)
+        self._label = np.array([s.label for s in self.surfaces] + [0], np.uint8)
+        self._mframe = np.array([s.mframe for s in self.surfaces] + [-1], np.int32)
+        self._tex = np.array([_MAT_TEX[s.material] for s in self.surfaces], np.int32)
+        self._prepare_surfaces()
+        self._prepare_lightmap()
+        H, W = cfg.height, cfg.width
+        u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+        self._xn = ((u - cfg.cx) / cfg.fx).astype(np.float32).ravel()
+        self._yn = ((v - cfg.cy) / cfg.fy).astype(np.float32).ravel()
+        self._inv_norm = (1.0 / np.sqrt(self._xn.astype(np.float64) ** 2 + self._yn ** 2 + 1.0)).astype(np.float32)
+        self._rays = np.empty((H * W, 6), np.float32)
+        r2 = (u - cfg.cx) ** 2 + (v - cfg.cy) ** 2
+        self._vignette = (1.0 - cfg.vignetting * r2 / r2.max()).astype(np.float32)[..., None]
+        self._noise_rng = np.random.default_rng([int(cfg.seed), 77])
+        pad = 64
+        self._img_noise = (self._noise_rng.standard_normal((H + pad, W + pad, 3), dtype=np.float32)
+                           * np.float32(cfg.image_noise))
+
+    # -------------------------------------------------------------- per-surface tables
+    def _prepare_surfaces(self) -> None:
+        """Texture maps ``(tx, ty) = (su * u + ou, sv * v + ov)`` (level-0 texels) and colours."""
+        ts = self.textures
+        S = len(self.surfaces)
+        self._su, self._sv = np.zeros(S), np.zeros(S)
+        self._ou, self._ov = np.zeros(S), np.zeros(S)
+        self._flat = np.zeros((S, 3))
+        self._tint = np.ones((S, 3))
+        sky = np.array([0.25, 0.35, 0.9])
+        sky /= np.linalg.norm(sky)
+        self._diffuse = np.zeros(S)
+        for i, s in enumerate(self.surfaces):
+            n = s.normal
+            # world-fixed Lambertian shading: ambient + light from above and one side
+            self._diffuse[i] = 0.62 + 0.38 * max(float(n @ sky), 0.0) + 0.08 * float(n[0])
+            self._flat[i] = np.array(FLAT_COLORS[_MAT_FLAT[s.material]]) * s.tint
+            if s.material in (MAT_FLOOR, MAT_WALL, MAT_CEILING, MAT_CONCRETE):
+                self._tint[i] = s.tint
+                self._su[i], self._sv[i] = 1.0 / TEXEL, -1.0 / TEXEL
+                h = ts.textures[_MAT_TEX[s.material]].shape[0] if ts else 0
+                self._ou[i] = s.offset[0] / TEXEL
+                self._ov[i] = h - s.offset[1] / TEXEL  # v = 0 (floor level) is the bottom row
+            elif ts is not None:
+                cells = {MAT_POSTER: ts.poster_cells, MAT_DOOR: ts.door_cells, MAT_BOX: ts.box_cells}[s.material]
+                x0, y0, w, h = cells[s.design % len(cells)]
+                self._su[i], self._ou[i] = w / s.size[0], x0 - 0.5
+                self._sv[i], self._ov[i] = -h / s.size[1], y0 + h - 0.5
+        # texel coordinates here are continuous with texel centres at integers
+
+    def _prepare_lightmap(self) -> None:
+        """Ceiling lamp pools: a smooth world-fixed (x, y) light map at 10 cm, in [0, 1]."""
+        x0, y0, x1, y1 = self.scene.bounds
+        res = 0.1
+        gx = np.arange(x0, x1 + res, res)
+        gy = np.arange(y0, y1 + res, res)
+        X, Y = np.meshgrid(gx, gy)
+        L = np.zeros_like(X)
+        for lx, ly in self.scene.lamps:
+            L += np.exp(-((X - lx) ** 2 + (Y - ly) ** 2) / (2 * 1.1 ** 2))
+        self._light = (L / max(L.max(), 1e-9)).astype(np.float32)
+        self._light_origin, self._light_res = (x0, y0), res
+
+    # ------------------------------------------------------------------------- render
+    def render(self, pose_world_base, index: int = 0, stamp: float = 0.0) -> SynthFrame:
+        """Render the view from base pose ``(x, y, theta)`` (3,) in the world."""
+        import cv2
+        import open3d as o3d
+
+        cfg = self.cfg
+        H, W = cfg.height, cfg.width
+        N = H * W
+        pose = np.asarray(pose_world_base, dtype=np.float64).reshape(3)
+        T_wc = se2_to_matrix(pose) @ self.mount.T_base_cam
+        R, c = T_wc[:3, :3], T_wc[:3, 3]
+        rng = np.random.default_rng([int(cfg.seed), int(index), 3])
+
+        # rays with direction R @ (xn, yn, 1): t_hit is then the optical-axis depth z
+        rays = self._rays
+        rays[:, 0:3] = c.astype(np.float32)
+        xn, yn = self._xn, self._yn
+        for k in range(3):
+            np.multiply(xn, np.float32(R[k, 0]), out=rays[:, 3 + k])
+            rays[:, 3 + k] += yn * np.float32(R[k, 1])
+            rays[:, 3 + k] += np.float32(R[k, 2])
+        hits = self._rc.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        z = hits["t_hit"].numpy()
+        prim = hits["primitive_ids"].numpy()
+        sid = self._tri_surface[np.minimum(prim, self._n_tri)]
+        S = len(self.surfaces)
+
+        order = np.argsort(sid, kind="stable")  # radix sort on int16
+        counts = np.bincount(sid, minlength=S + 1)
+        n_hit = N - int(counts[S])
+        idx = order[:n_hit]
+        zs = z[idx]
+        xs, ys = xn[idx], yn[idx]
+        cos_s = np.empty(n_hit, np.float32)
+        colour = np.empty((n_hit, 3), np.float32)
+        starts = np.concatenate([[0], np.cumsum(counts[:S])])
+        Rt = R.T
+
+        tex = self.textures
+        if tex is not None:
+            tx = np.empty(n_hit, np.float32)
+            ty = np.empty(n_hit, np.float32)
+            foot = np.empty(n_hit, np.float32)
+        px = np.empty(n_hit, np.float32)
+        py = np.empty(n_hit, np.float32)
+        f32 = np.float32
+        for s in np.nonzero(counts[:S])[0]:
+            a, b = starts[s], starts[s + 1]
+            zz, xx, yy = zs[a:b], xs[a:b], ys[a:b]
+            surf = self.surfaces[s]
+            n_cam = Rt @ surf.normal
+            cs = cos_s[a:b]
+            np.abs(f32(n_cam[0]) * xx + f32(n_cam[1]) * yy + f32(n_cam[2]), out=cs)
+            cs *= self._inv_norm[idx[a:b]]
+            # world x, y of the hit: c + z * R (xn, yn, 1)
+            px[a:b] = zz * (f32(R[0, 0]) * xx + f32(R[0, 1]) * yy + f32(R[0, 2])) + f32(c[0])
+            py[a:b] = zz * (f32(R[1, 0]) * xx + f32(R[1, 1]) * yy + f32(R[1, 2])) + f32(c[1])
+            if tex is None:
+                continue
+            # surface coordinate u = (c + z d - origin) . axis_u = z (R^T axis_u) . (xn, yn, 1) + const
+            for out, axis, scale, off in ((tx, surf.axis_u, self._su[s], self._ou[s]),
+                                          (ty, surf.axis_v, self._sv[s], self._ov[s])):
+                A = scale * (Rt @ axis)
+                B = scale * float((c - surf.origin) @ axis) + off
+                o = out[a:b]
+                np.multiply(xx, f32(A[0]), out=o)
+                o += yy * f32(A[1])
+                o += f32(A[2])
+                o *= zz
+                o += f32(B)
+            # pixel footprint in texels (isotropic compromise for oblique views)
+            np.multiply(zz, f32(abs(self._su[s]) / cfg.fx), out=foot[a:b])
+            foot[a:b] /= np.sqrt(np.maximum(cs, f32(0.05)))
+
+        # shading: per-surface Lambert term x (1 + lamp pools), world-fixed
+        lo = self._light_origin
+        lmx = ((px - lo[0]) / self._light_res).reshape(-1, 1)
+        lmy = ((py - lo[1]) / self._light_res).reshape(-1, 1)
+        light = _remap_points(self._light, lmx.ravel(), lmy.ravel(), cv2.BORDER_REPLICATE).reshape(-1)
+        shade = np.repeat(self._diffuse[:S].astype(np.float32), counts[:S]) * (f32(0.8) + f32(0.35) * light)
+
+        if tex is None:
+            colour[:] = np.repeat(self._flat.astype(np.float32), counts[:S], axis=0)
+        else:
+            lod = np.log2(np.maximum(foot, f32(1e-6)))
+            tex_of_pixel = np.repeat(self._tex, counts[:S])
+            bounds = np.searchsorted(tex_of_pixel, np.arange(len(tex.textures) + 1))
+            for t_id, texture in enumerate(tex.textures):
+                a, b = bounds[t_id], bounds[t_id + 1]
+                if b > a:
+                    colour[a:b] = _sample_trilinear(texture, tx[a:b], ty[a:b], lod[a:b])
+            colour *= np.repeat(self._tint.astype(np.float32), counts[:S], axis=0)
+        colour *= shade[:, None]
+
+        img = np.zeros((N, 3), np.float32)
+        img[idx] = colour
+        img = img.reshape(H, W, 3)
+        img *= self._vignette
+        if cfg.image_noise > 0:
+            oy, ox = rng.integers(0, 64, 2)
+            img += self._img_noise[oy:oy + H, ox:ox + W]
+        color = np.clip(img, 0.0, 255.0).astype(np.uint8)
+
+        # ---------------------------------------------------------------------- depth
+        hit = sid < S
+        z_true = np.where(hit, z, np.float32(0.0)).astype(np.float32)
+        cos_full = np.ones(N, np.float32)
+        cos_full[idx] = cos_s
+        depth = self._depth(z_true, cos_full, rng)
+
+        labels = self._label[sid]
+        in_range = (z_true >= cfg.depth_min) & (z_true <= cfg.depth_max)
+        labels = np.where(in_range, labels, np.uint8(0)).reshape(H, W)
+        truth = self._truth(labels, sid, pose, T_wc)
+        truth["depth_true"] = z_true.reshape(H, W)
+        rgbd = RGBDFrame(index=int(index), stamp=float(stamp), color=color, depth=depth,
+                         depth_stamp=float(stamp), meta={"source": "synth", "layout": cfg.layout})
+        return SynthFrame(rgbd, T_wc, pose.copy(), truth)
+
+    def _depth(self, z_true: np.ndarray, cos_full: np.ndarray, rng) -> np.ndarray:
+        """Kinect v2-like measured depth (H, W) float32 from the true z (N,)."""
+        cfg = self.cfg
+        H, W = cfg.height, cfg.width
+        d = z_true.copy()
+        if cfg.depth_noise:
+            sigma = np.float32(cfg.depth_sigma0) + np.float32(cfg.depth_sigma2) * d * d
+            d += sigma * rng.standard_normal(d.shape[0], dtype=np.float32)
+            d = np.round(d * np.float32(1000.0)) * np.float32(0.001)  # whole millimetres
+        d[(d < cfg.depth_min) | (d > cfg.depth_max) | (z_true <= 0)] = 0.0
+        d[cos_full < cfg.depth_min_cos] = 0.0
+        d = d.reshape(H, W)
+        if cfg.depth_noise and cfg.depth_edge_holes:
+            d[_edge_holes(z_true.reshape(H, W), rng)] = 0.0
+        if cfg.depth_noise and cfg.dropout_rate > 0:
+            k = rng.poisson(cfg.dropout_rate * H * W)
+            d.reshape(-1)[rng.integers(0, H * W, k)] = 0.0
+        if cfg.depth_noise and cfg.dropout_blobs > 0:
+            import cv2
+            for _ in range(rng.poisson(cfg.dropout_blobs)):
+                centre = (int(rng.integers(0, W)), int(rng.integers(0, H)))
+                axes = (int(rng.integers(2, 7)), int(rng.integers(2, 7)))
+                mask = np.zeros((H, W), np.uint8)
+                cv2.ellipse(mask, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+                d[mask.astype(bool)] = 0.0
+        return d
+
+    def _truth(self, labels: np.ndarray, sid: np.ndarray, pose: np.ndarray, T_wc: np.ndarray) -> dict:
+        N = labels.size
+        walls = labels.reshape(-1) == LABEL_WALL
+        n_frames = len(self.scene.manhattan_headings)
+        per = np.bincount(self._mframe[sid[walls]], minlength=n_frames)[:n_frames] / N
+        seen = [k for k in np.argsort(-per, kind="stable") if per[k] >= self.cfg.min_wall_fraction]
+        return {
+            "wall_fraction": float(walls.mean()),
+            "floor_fraction": float((labels == LABEL_FLOOR).mean()),
+            "floor_normal_cam": T_wc[:3, :3].T @ np.array([0.0, 0.0, 1.0]),
+            "manhattan_yaws_base": [float(wrap_quarter(self.scene.manhattan_headings[k] - pose[2])) for k in seen],
+            "manhattan_scores": [float(per[k]) for k in seen],
+            "manhattan_ids": [int(k) for k in seen],
+            "labels": labels,
+        }
+
+
+def _edge_holes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Mask (H, W) of pixels lost at depth discontinuities.
+
+    A jump between neighbours larger than ``0.02 + 0.03 z^2`` m (well above the
+    neighbour-to-neighbour change of a slanted floor) removes the far-side pixel, and
+    with probability 1/2 the next one outward as well (one or two pixels, as Kinect v2).
+    """
+    zz = np.where(z > 0, z, np.float32(1e3))
+    mask = np.zeros(z.shape, bool)
+    for axis in (0, 1):
+        a = zz[:-1, :] if axis == 0 else zz[:, :-1]
+        b = zz[1:, :] if axis == 0 else zz[:, 1:]
+        dz = b - a
+        thr = np.float32(0.02) + np.float32(0.03) * np.minimum(a, b) ** 2
+        for farther_is_b in (True, False):
+            jump = dz > thr if farther_is_b else dz < -thr
+            r, c = np.nonzero(jump)
+            if axis == 0:
+                r = r + 1 if farther_is_b else r
+            else:
+                c = c + 1 if farther_is_b else c
+            mask[r, c] = True
+            two = rng.random(len(r)) < 0.5  # a second pixel further out
+            step = 1 if farther_is_b else -1
+            r2, c2 = (r + step, c) if axis == 0 else (r, c + step)
+            ok = two & (r2 >= 0) & (r2 < z.shape[0]) & (c2 >= 0) & (c2 < z.shape[1])
+            mask[r2[ok], c2[ok]] = True
+    return mask
+
+
+def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
+    """Bilinear samples of ``img`` at float32 points (n,) -> (n, C) (or (n,) for 2-D images).
+
+    OpenCV limits map sizes to < 32767 per side, so points go in as rows of 1024.
+    """
+    import cv2
+    n = len(x)
+    cols = 1024
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, np.float32)
+    my = np.zeros(rows * cols, np.float32)
+    mx[:n], my[:n] = x, y
+    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border)
+    return out.reshape(rows * cols, *img.shape[2:])[:n]
+
+
+def _sample_trilinear(texture, tx: np.ndarray, ty: np.ndarray, lod: np.ndarray) -> np.ndarray:
+    """Trilinear (mip-mapped) samples (n, 3) float32 of a texture at level-0 texel coords."""
+    import cv2
+    nlev = len(texture.levels)
+    lod = np.clip(lod, 0.0, nlev - 1.0001).astype(np.float32)
+    l0 = lod.astype(np.int8)
+    frac = lod - l0
+    order = np.argsort(l0, kind="stable")
+    lc = np.bincount(l0, minlength=nlev)
+    start = np.concatenate([[0], np.cumsum(lc)])
+    out = np.empty((len(tx), 3), np.float32)
+    txo, tyo, fo = tx[order], ty[order], frac[order]
+    res = np.empty((len(tx), 3), np.float32)
+    border = cv2.BORDER_WRAP if texture.periodic else cv2.BORDER_REPLICATE
+    for lev in range(nlev):
+        a, b = start[lev], start[lev + 1]
+        if b == a:
+            continue
+        acc = None
+        for lv, w in ((lev, 1.0 - fo[a:b]), (min(lev + 1, nlev - 1), fo[a:b])):
+            img = texture.levels[lv]
+            h, wd = img.shape[:2]
+            sc = np.float32(0.5 ** lv)
+            x = (txo[a:b] + np.float32(0.5)) * sc - np.float32(0.5)
+            y = (tyo[a:b] + np.float32(0.5)) * sc - np.float32(0.5)
+            if texture.periodic:
+                x = np.mod(x, np.float32(wd))
+                y = np.mod(y, np.float32(h))
+            smp = _remap_points(img, x, y, border).astype(np.float32)
+            acc = smp * w[:, None] if acc is None else acc + smp * w[:, None]
+        res[a:b] = acc
+    out[order] = res
+    return out
+
+
+# ------------------------------------------------------------------------------ streams
+
+def render_sequence(cfg: SynthConfig, frames: Iterable[int] | None = None) -> Iterator[SynthFrame]:
+    """Render the sequence one frame at a time (all frames, or the given frame indices)."""
+    renderer = SynthRenderer(cfg)
+    stamps, poses = _trajectory(cfg, renderer.scene)
+    for i in (range(cfg.n_frames) if frames is None else frames):
+        i = int(i)
+        if not 0 <= i < cfg.n_frames:
+            raise IndexError(f"frame {i} is outside the sequence of {cfg.n_frames} frames")
+        yield renderer.render(poses[i], i, stamps[i])
+
+
+def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray) -> None:
+    try:
+        from planar_vo.io import write_tum_trajectory  # type: ignore[attr-defined]
+    except ImportError:
+        write_tum_trajectory = None
+    if write_tum_trajectory is not None:
+        from planar_vo.io.types import Trajectory
+        write_tum_trajectory(path, Trajectory(stamps, poses))
+        return
+    from planar_vo.geometry import pose7_from_matrix
+    from planar_vo.io.atomic import write_text_atomic
+    lines = ["# timestamp tx ty tz qx qy qz qw  (camera optical frame in world, synthetic ground truth)"]
+    for t, T in zip(stamps, poses):
+        lines.append(f"{t:.9f} " + " ".join(f"{v:.9f}" for v in pose7_from_matrix(T)))
+    write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
+                    depth_encoding: str = "png", progress: bool = True) -> dict:
+    """Render ``cfg`` into an MCAP log plus ``<out>.gt.tum``; returns ``{'log': ..., 'ground_truth': ...}``.
+
+    The log looks like an iai_kinect2 recording (``/kinect2/qhd/...`` images and
+    camera_info, the mount on ``/tf_static``, ground truth on ``/ground_truth``) in the
+    ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
+    """
+    from planar_vo.io.mcap_writer import RGBDLogWriter
+
+    out = os.fspath(out_path)
+    base = out[:-5] if out.endswith(".mcap") else out
+    gt_path = base + ".gt.tum"
+    renderer = SynthRenderer(cfg)
+    stamps, poses = _trajectory(cfg, renderer.scene)
+    T_wc = np.empty((cfg.n_frames, 4, 4))
+    t0 = time.perf_counter()
+    try:
+        writer = RGBDLogWriter(out, renderer.intrinsics, profile=profile, mount=renderer.mount,
+                               color_encoding=color_encoding, depth_encoding=depth_encoding)
+    except ValueError as exc:
+        raise InputError(f"synthetic log {out}: {exc}") from None
+    with writer:
+        for i in range(cfg.n_frames):
+            f = renderer.render(poses[i], i, stamps[i])
+            writer.write(f.rgbd)
+            writer.write_ground_truth(f.rgbd.stamp, f.T_world_cam)
+            T_wc[i] = f.T_world_cam
+            if progress and (i % 10 == 9 or i == cfg.n_frames - 1):
+                rate = (i + 1) / max(time.perf_counter() - t0, 1e-9)
+                print(f"\rsynth {cfg.layout}: frame {i + 1}/{cfg.n_frames}  {rate:.1f} frames/s",
+                      end="", file=sys.stderr, flush=True)
+    if progress:
+        print(file=sys.stderr)
+    _write_tum(gt_path, stamps, T_wc)
+    return {"log": out, "ground_truth": gt_path}
+
+
+def config_fields() -> list[str]:
+    """Names of all :class:`SynthConfig` fields (for config files and help)."""
+    return [f.name for f in fields(SynthConfig)]
