@@ -346,20 +346,21 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
     inl = best_ok
     refine_iters = 0
     if opt.refine:
-        for _round in range(2):  # refine, re-select inliers, refine again if they changed
+        rounds = 3  # refine, re-select inliers, refine again while they change
+        for rnd in range(rounds):
             sub = m.subset(inl)
             fun = lambda p, jac: _sampson_residuals_2(sub, p[0], p[1], jac)  # noqa: E731
             p, _cost, its, _J = _levenberg_marquardt(fun, np.array([theta, alpha]), opt.max_refine_iterations)
             refine_iters += its
             theta, alpha = float(p[0]), float(p[1])
-            c, s = math.cos(theta), math.sin(theta)
-            sc, sign, okm = _score(m, np.array([c]), np.array([s]), np.array([math.sin(alpha)]),
-                                   np.array([math.cos(alpha)]), thr2, par_tol)
+            if rnd == rounds - 1:
+                break  # the reported inliers are the ones the fit used
+            sc, sign, okm = _score(m, np.array([math.cos(theta)]), np.array([math.sin(theta)]),
+                                   np.array([math.sin(alpha)]), np.array([math.cos(alpha)]), thr2, par_tol)
             if sign[0] < 0:
                 alpha += math.pi
             new = okm[0]
             if np.array_equal(new, inl) or new.sum() < max(opt.min_inliers, 2):
-                inl = new if new.sum() >= max(opt.min_inliers, 2) else inl
                 break
             inl = new
     t_dir = np.array([math.sin(alpha), 0.0, math.cos(alpha)])
