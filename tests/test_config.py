@@ -1,0 +1,37 @@
+"""Typed configuration: defaults in code, YAML overrides, unknown keys rejected."""
+import pytest
+
+from planar_vo.config import RunConfig, dump_config, load_config
+from planar_vo.errors import ConfigError
+
+
+def test_defaults_round_trip_through_yaml(tmp_path):
+    cfg = load_config()
+    assert isinstance(cfg, RunConfig) and cfg.solver == "batch"
+    p = tmp_path / "c.yaml"
+    p.write_text(dump_config(cfg))
+    assert load_config(p) == cfg
+
+
+def test_file_and_overrides(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("solver: online\ninput:\n  stride: 2\n")
+    cfg = load_config(p, {"input": {"stride": 3}, "mount": {"pitch_deg": 10.0, "roll_deg": 2}})
+    assert cfg.solver == "online" and cfg.input.stride == 3
+    assert cfg.mount.pitch_deg == 10.0 and cfg.mount.roll_deg == 2.0
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("solvr: batch\n", "unknown config key 'solvr'"),
+    ("input:\n  strid: 2\n", "unknown config key 'input.strid'"),
+    ("input:\n  stride: two\n", "input.stride"),
+    ("solver: fast\n", "solver"),
+    ("input:\n  fx: 500.0\n", "fx, fy, cx, cy"),
+    ("- a\n- b\n", "mapping"),
+])
+def test_bad_config_is_one_clear_error(tmp_path, text, needle):
+    p = tmp_path / "c.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=None) as ei:
+        load_config(p)
+    assert needle in str(ei.value)
