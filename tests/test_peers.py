@@ -191,3 +191,95 @@ def test_constant_velocity_init_follows_the_last_good_step():
     for i in range(3):
         t2.add(RGBDFrame(i, float(i), np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2), np.float32)))
     assert m2.inits == [None, None]
+
+
+# ----------------------------------------------------------------- bench peers
+
+@pytest.fixture(scope="module")
+def synthetic_log(tmp_path_factory, frames):
+    """The four rendered views as an MCAP (lossless images) carrying ground truth."""
+    from planar_vo.io import RGBDLogWriter
+
+    path = tmp_path_factory.mktemp("peers") / "room.mcap"
+    with RGBDLogWriter(path, INTR, color_encoding="bgr8", depth_encoding="32FC1") as w:
+        for f, T in zip(frames, POSES):
+            w.write(f)
+            w.write_ground_truth(f.stamp, T)
+    return path
+
+
+def _bench_args(*argv):
+    import argparse
+
+    from planar_vo.bench import peers as bench
+
+    p = argparse.ArgumentParser()
+    bench.add_arguments(p)
+    return bench, p.parse_args([str(a) for a in argv])
+
+
+def test_bench_peers_figures_on_a_log_with_ground_truth(synthetic_log, tmp_path, capsys):
+    out_json = tmp_path / "peers.json"
+    bench, args = _bench_args(synthetic_log, "--methods", "open3d_tensor", "opencv",
+                              "--json", out_json, "--out", tmp_path / "runs")
+    assert bench.main(args) == 0
+    text = capsys.readouterr().out
+    assert "room.mcap: 4 frames 320x240, ground truth 4 poses" in text
+    assert "Open3D tensor multi-scale" in text and "OpenCV RGB-D" in text
+    import json
+
+    res = json.loads(out_json.read_text())["logs"][0]
+    assert res["frames"] == 4 and res["ground_truth"]["poses"] == 4
+    for name in ("open3d_tensor", "opencv"):
+        r = res["methods"][name]
+        assert r["failures"] == 0 and r["ms_per_frame"] > 0
+        e = r["errors"]
+        assert e["matched"] == 4
+        gt_path = sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(POSES, POSES[1:]))
+        assert e["path_length_m"] == pytest.approx(gt_path, abs=1e-9)
+        assert e["ate_rmse_m"] < TOL_M and abs(e["final_yaw_error_deg"]) < 3 * TOL_DEG
+        # The kept trajectory starts at the ground-truth first pose and ends near the last.
+        from planar_vo.io.trajectory import read_tum_trajectory
+
+        traj = read_tum_trajectory(tmp_path / "runs" / "room" / f"{name}.tum")
+        assert np.allclose(traj.poses[0], POSES[0], atol=1e-9)
+        assert np.linalg.norm(traj.poses[-1][:3, 3] - POSES[-1][:3, 3]) < 3 * TOL_M
+    assert res["ratios"] == {}  # planar-vo not run: no ratios
+
+
+def test_bench_peers_rejects_bad_arguments(synthetic_log, tmp_path):
+    from planar_vo.errors import InputError
+
+    bench, args = _bench_args(synthetic_log, synthetic_log, "--gt", tmp_path / "a.tum")
+    with pytest.raises(InputError, match="--gt given 1 times for 2 logs"):
+        bench.main(args)
+    bench, args = _bench_args(tmp_path / "missing.mcap")
+    with pytest.raises(InputError, match="missing.mcap: no such log"):
+        bench.main(args)
+    bench, args = _bench_args(synthetic_log, "--frames", "1")
+    with pytest.raises(InputError, match="--frames must be >= 2"):
+        bench.main(args)
+
+
+def test_format_table_ratios_and_missing_values():
+    from planar_vo.bench.peers import _ratios, format_table
+
+    def row(label, drift, ms):
+        return {"label": label, "failures": 1, "ms_per_frame": ms,
+                "errors": {"ate_rmse_m": 0.01, "endpoint_drift_pct": drift, "final_yaw_error_deg": float("nan"),
+                           "path_length_m": 10.0}}
+
+    res = {"log": "x/loop.mcap", "frames": 300, "image_size": [640, 480],
+           "ground_truth": {"poses": 300}, "peer_pass": {"decode_ms_per_frame": 4.0},
+           "methods": {"planar_vo_smoothed": row("planar-vo smoothed", 0.2, 5.0),
+                       "open3d_tensor": row("Open3D tensor multi-scale", 3.0, 50.0),
+                       "opencv": row("OpenCV RGB-D", 1.5, 30.0)},
+           "planar_vo_end_to_end": {"fps": 80.0}}
+    res["ratios"] = _ratios(res)
+    assert res["ratios"]["best_peer"] == "opencv"
+    assert res["ratios"]["drift_ratio_best_peer_over_planar_vo"] == pytest.approx(7.5)
+    assert res["ratios"]["speedup_vs_open3d_tensor"] == pytest.approx(4.0)  # 80 fps / 20 fps
+    text = format_table(res)
+    assert "loop.mcap: 300 frames 640x480, ground truth 300 poses, path 10.00 m" in text
+    assert "= 4.00x (target >= 3x: met)" in text and "= 7.50x (target >= 5x: met)" in text
+    assert "n/a" in text  # the NaN yaw error
