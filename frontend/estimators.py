@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planar_vo.errors import ConfigError
 from planar_vo.frontend.solvers import PlanarMotion, homography_2pt_batch
 from planar_vo.geometry import wrap_angle
 
@@ -48,6 +49,23 @@ PURE_ROTATION = "pure_rotation"      # yaw fine, translation direction unobserva
 TOO_FEW_POINTS = "too_few_points"
 NO_MODEL = "no_model"                # no hypothesis with enough support
 NO_DEPTH = "no_depth"                # metric estimator: no inlier with valid depth
+
+
+def _check_options(opt) -> None:
+    """Range checks shared by the options dataclasses (one-line ConfigError naming the field)."""
+    name = type(opt).__name__
+    if not 0.0 < opt.confidence < 1.0:
+        raise ConfigError(f"{name}.confidence must be in (0, 1), got {opt.confidence}")
+    for f in ("max_error_px", "focal_px", "pixel_sigma", "chi2", "depth_chi2"):
+        v = getattr(opt, f, None)
+        if v is not None and not v > 0:
+            raise ConfigError(f"{name}.{f} must be > 0, got {v}")
+    if getattr(opt, "max_error", None) is not None and not opt.max_error > 0:
+        raise ConfigError(f"{name}.max_error must be > 0 (or None), got {opt.max_error}")
+    for f in ("max_iterations", "batch_size"):
+        v = getattr(opt, f, None)
+        if v is not None and v < 1:
+            raise ConfigError(f"{name}.{f} must be >= 1, got {v}")
 
 
 @dataclass
@@ -72,6 +90,9 @@ class TwoPointOptions:
     refine: bool = True
     max_refine_iterations: int = 15
     seed: int = 0
+
+    def __post_init__(self):
+        _check_options(self)
 
     def threshold(self) -> float:
         """Sampson threshold in normalised image units."""
@@ -112,6 +133,9 @@ class DirPointOptions:
     max_iterations: int = 200
     min_inliers: int = 3
     seed: int = 0
+
+    def __post_init__(self):
+        _check_options(self)
 
 
 @dataclass
@@ -374,7 +398,8 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
     c, s = math.cos(theta), math.sin(theta)
     X1, Y1 = x1[inl, 0], x1[inl, 1]
     zr = -s * X1 + c
-    rot_err = np.hypot((c * X1 + s) / zr - x2[inl, 0], Y1 / zr - x2[inl, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rot_err = np.nan_to_num(np.hypot((c * X1 + s) / zr - x2[inl, 0], Y1 / zr - x2[inl, 1]), nan=np.inf)
     info.extra["rotation_only_median_error"] = float(np.median(rot_err))
     if np.median(rot_err) < thr:
         info.status = PURE_ROTATION

@@ -193,3 +193,14 @@ def test_dpp_degenerate_inputs():
     assert m is None and info.status == "too_few_points"
     with pytest.raises(ValueError, match=r"P1 \(10, 3\) and P2 \(9, 3\)"):
         estimate_planar_motion_dpp(P, P[:9], 0.0)
+
+
+def test_options_are_range_checked():
+    from planar_vo.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"TwoPointOptions.confidence must be in \(0, 1\)"):
+        TwoPointOptions(confidence=1.0)
+    with pytest.raises(ConfigError, match="MetricTwoPointOptions.focal_px"):
+        MetricTwoPointOptions(focal_px=0.0)
+    with pytest.raises(ConfigError, match="DirPointOptions.max_iterations"):
+        DirPointOptions(max_iterations=0)

@@ -292,38 +292,46 @@ def _write_json(path: str, payload: dict) -> None:
 
 
 def write_plots(rows: list[dict], methods: list[str], outdir: str) -> list[str]:
-    """One PNG per motion, laid out like the paper's Fig. 3/4 (rows: noise, pitch, roll)."""
+    """One PNG per motion, laid out like the paper's Fig. 3/4 (mean errors).
+
+    Rows: image noise, then pitch and roll sweeps with the tilt shared by both views and
+    independent per view; columns: rotation and translation error.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     os.makedirs(outdir, exist_ok=True)
-    colors = {"2pt": "tab:red", "5pt-opencv": "tab:blue", "poselib-2pt": "tab:green", "poselib-3pt": "tab:purple"}
+    style = {"2pt": ("tab:red", "o", 3), "5pt-opencv": ("tab:blue", "s", 2),
+             "poselib-2pt": ("tab:green", "x", 1), "poselib-3pt": ("tab:purple", "^", 1)}
+    panels = [("noise", "none", "image noise (px)"),
+              ("pitch", "shared", "pitch error sd (deg), shared by both views, 0.5 px"),
+              ("pitch", "independent", "pitch error sd (deg), independent per view, 0.5 px"),
+              ("roll", "shared", "roll error sd (deg), shared by both views, 0.5 px"),
+              ("roll", "independent", "roll error sd (deg), independent per view, 0.5 px")]
     written = []
     for motion in ("forward", "sideways"):
-        fig, axes = plt.subplots(3, 2, figsize=(10, 11))
-        for i, sweep in enumerate(("noise", "pitch", "roll")):
-            for j, (key, label) in enumerate((("mean_rot_deg", "rotation error"), ("mean_trans_deg", "translation error"))):
+        fig, axes = plt.subplots(len(panels), 2, figsize=(10, 3.0 * len(panels)))
+        for i, (sweep, mode, xlabel) in enumerate(panels):
+            for j, (key, label) in enumerate((("mean_rot_deg", "rotation"), ("mean_trans_deg", "translation"))):
                 ax = axes[i, j]
                 for m in methods:
-                    for mode, style in (("none", "-"), ("shared", "-"), ("independent", "--")):
-                        sel = sorted((r for r in rows if (r["motion"], r["sweep"], r["tilt_mode"], r["method"])
-                                      == (motion, sweep, mode, m)), key=lambda r: r["level"])
-                        if not sel:
-                            continue
-                        lab = m if mode in ("none", "shared") else f"{m} (independent)"
-                        ax.plot([r["level"] for r in sel], [r[key] for r in sel], style, marker="o", ms=3,
-                                color=colors.get(m), label=lab)
-                ax.set_xlabel("image noise (px)" if sweep == "noise" else f"{sweep} noise (deg), 0.5 px image noise")
-                ax.set_ylabel(f"mean {label} (deg)")
+                    sel = sorted((r for r in rows if (r["motion"], r["sweep"], r["tilt_mode"], r["method"])
+                                  == (motion, sweep, mode, m)), key=lambda r: r["level"])
+                    if sel:
+                        color, marker, z = style.get(m, (None, "o", 1))
+                        ax.plot([r["level"] for r in sel], [r[key] for r in sel], marker=marker, ms=4,
+                                color=color, label=m, zorder=z)
+                ax.set_xlabel(xlabel, fontsize=8)
+                ax.set_ylabel(f"mean {label} error (deg)", fontsize=8)
                 ax.grid(alpha=0.3)
-                if i == 0 and j == 0 or (i > 0 and j == 0):
+                if j == 0:
                     ax.legend(fontsize=7)
-        fig.suptitle(f"{motion} motion: 2-point planar vs 5-point (mean over trials)")
+        fig.suptitle(f"{motion} motion: 2-point planar vs 5-point")
         fig.tight_layout()
         path = os.path.join(outdir, f"solvers_{motion}.png")
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=100)
         plt.close(fig)
         written.append(path)
     return written
