@@ -43,6 +43,11 @@ class _Stop:
 
     offset: int
     reason: str
+    last_stamp: float | None = None  # log time of the last readable message
+
+    def where(self, size: int) -> str:
+        return (f"at byte {self.offset} of {size}: {self.reason}; last readable message at "
+                f"{_fmt_stamp(self.last_stamp)}")
 
 
 def _ns_to_s(ns: int) -> float:
@@ -107,8 +112,8 @@ class McapRGBDLog(RGBDLog):
             for _, channel, _ in self._iter_linear(None, scan=True):
                 self._counts[channel.id] += 1
             if self.scan_stop is not None and not self._channels:
-                raise InputError(f"{self.path}: no readable MCAP records ({self.scan_stop.reason} at "
-                                 f"byte {self.scan_stop.offset} of {self.size})")
+                raise InputError(f"{self.path}: no readable MCAP records "
+                                 f"({self.scan_stop.where(self.size)})")
         self._kinds = {}
         for cid, ch in self._channels.items():
             schema = self._schemas.get(ch.schema_id)
@@ -195,6 +200,7 @@ class McapRGBDLog(RGBDLog):
         f = self._file
         offset = len(MCAP_MAGIC)
         stop = None
+        last_ns = None
         while True:
             f.seek(offset)
             head = f.read(9)
@@ -227,6 +233,8 @@ class McapRGBDLog(RGBDLog):
                                           f"({type(exc).__name__}: {exc}); skipped"))
                 continue
             for rec in records:
+                if isinstance(rec, Message):
+                    last_ns = rec.log_time
                 if isinstance(rec, Schema):
                     self._schemas.setdefault(rec.id, rec) if scan else None
                 elif isinstance(rec, Channel):
@@ -235,6 +243,8 @@ class McapRGBDLog(RGBDLog):
                         (ids is None or rec.channel_id in ids):
                     channel = self._channels[rec.channel_id]
                     yield self._schemas.get(channel.schema_id), channel, rec
+        if stop is not None and last_ns is not None:
+            stop.last_stamp = _ns_to_s(last_ns)
         if scan:
             self.scan_stop = stop
         elif stop is not None and stop_out is not None:
@@ -334,11 +344,10 @@ class McapRGBDLog(RGBDLog):
             self._raise_cut(stop_at[0], yielded, stats["paired"])
 
     def _raise_cut(self, stop: _Stop, yielded: int, paired: int) -> None:
-        where = f"{stop.reason} at byte {stop.offset} of {self.size}"
+        where = stop.where(self.size)
         if yielded == 0 and paired == 0:
-            raise InputError(f"{self.path}: no readable frame: {where}; the log is damaged")
-        raise PartialResult(f"{self.path}: log is cut short ({where}); read {paired} frames "
-                            f"before it")
+            raise InputError(f"{self.path}: no readable frame; the log is damaged ({where})")
+        raise PartialResult(f"{self.path}: log is cut short {where}; read {paired} frames before it")
 
     # -------------------------------------------------------------- metadata
     def _probe(self) -> tuple:
@@ -488,7 +497,7 @@ class McapRGBDLog(RGBDLog):
         gt = self.ground_truth
         s.ground_truth_poses = len(gt) if gt is not None else 0
         if stop_at:
-            s.truncated = f"{stop_at[0].reason} at byte {stop_at[0].offset} of {self.size}"
+            s.truncated = stop_at[0].where(self.size)
         if s.depth_all_invalid:
             s.notes.append(f"depth is invalid (0, NaN or inf) in every sampled frame of {self.depth_topic}")
         return s
