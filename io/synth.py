@@ -134,6 +134,17 @@ class SynthConfig:
             bad("weave", "must be within [0, corridor_width / 4]")
         if self.ramp_s < 0:
             bad("ramp_s", "must be >= 0")
+        need = min_path_length(self.layout, self.turn_radius_used, self.corridor_width)
+        if self.path_length < need:
+            frames = int(math.ceil((need / self.speed + self.ramp_s) * self.rate_hz)) + 2
+            raise ConfigError(f"SynthConfig.n_frames: layout {self.layout!r} needs at least {need:.1f} m of path "
+                              f"but {self.n_frames} frames at {self.speed} m/s drive {self.path_length:.1f} m; "
+                              f"use at least {frames} frames")
+
+    @property
+    def turn_radius_used(self) -> float:
+        """Corner radius of the path: ``turn_radius``, widened so ``speed / radius <= max_yaw_rate``."""
+        return max(self.turn_radius, self.speed / self.max_yaw_rate)
 
     @property
     def duration(self) -> float:
@@ -191,15 +202,8 @@ def synth_mount(cfg: SynthConfig) -> Mount:
 
 
 def _scene_for(cfg: SynthConfig) -> Scene:
-    radius = max(cfg.turn_radius, cfg.speed / cfg.max_yaw_rate)
-    L = cfg.path_length
-    need = min_path_length(cfg.layout, radius, cfg.corridor_width)
-    if L < need:
-        frames = int(math.ceil((need / cfg.speed + cfg.ramp_s) * cfg.rate_hz)) + 1
-        raise ConfigError(f"SynthConfig.n_frames: layout {cfg.layout!r} needs at least {need:.1f} m of path, "
-                          f"{cfg.n_frames} frames at {cfg.speed} m/s give {L:.1f} m; use n_frames >= {frames}")
-    return build_scene(cfg.layout, L, cfg.seed, corridor_width=cfg.corridor_width,
-                       ceiling_height=cfg.ceiling_height, turn_radius=radius,
+    return build_scene(cfg.layout, cfg.path_length, cfg.seed, corridor_width=cfg.corridor_width,
+                       ceiling_height=cfg.ceiling_height, turn_radius=cfg.turn_radius_used,
                        n_posters=N_POSTERS, n_doors=N_DOORS, n_box_designs=N_BOXES)
 
 
@@ -263,9 +267,10 @@ class SynthRenderer:
         sc_sorted = Scene(sc.layout, self.surfaces, sc.manhattan_headings, sc.path, sc.lamps,
                           sc.ceiling_height, sc.bounds)
         V, F, tri_surface = sc_sorted.mesh()
-        self._rc = o3d.t.geometry.RaycastingScene()
-        self._rc.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
-        self._tri_surface = np.append(tri_surface, S).astype(np.int16)  # last entry: miss
+        self._vertices = V.astype(np.float64)
+        self._triangles = o3d.core.Tensor(F)
+        # surface id per triangle, last entry for a miss; uint8 keys sort ~3x faster
+        self._tri_surface = np.append(tri_surface, S).astype(np.uint8 if S < 255 else np.int16)
         self._n_tri = len(tri_surface)
         self._label = np.array([s.label for s in self.surfaces] + [0], np.uint8)
         self._mframe = np.array([s.mframe for s in self.surfaces] + [-1], np.int32)
@@ -277,13 +282,17 @@ class SynthRenderer:
         self._xn = ((u - cfg.cx) / cfg.fx).astype(np.float32).ravel()
         self._yn = ((v - cfg.cy) / cfg.fy).astype(np.float32).ravel()
         self._inv_norm = (1.0 / np.sqrt(self._xn.astype(np.float64) ** 2 + self._yn ** 2 + 1.0)).astype(np.float32)
-        self._rays = np.empty((H * W, 6), np.float32)
+        rays = np.zeros((H * W, 6), np.float32)
+        rays[:, 3], rays[:, 4], rays[:, 5] = self._xn, self._yn, 1.0
+        self._rays = o3d.core.Tensor(rays)
         r2 = (u - cfg.cx) ** 2 + (v - cfg.cy) ** 2
-        self._vignette = (1.0 - cfg.vignetting * r2 / r2.max()).astype(np.float32)[..., None]
-        self._noise_rng = np.random.default_rng([int(cfg.seed), 77])
-        pad = 64
-        self._img_noise = (self._noise_rng.standard_normal((H + pad, W + pad, 3), dtype=np.float32)
-                           * np.float32(cfg.image_noise))
+        self._vignette = (1.0 - cfg.vignetting * r2 / r2.max()).astype(np.float32).ravel()
+        # standard normals for depth and image noise: each frame reads a window at a
+        # random offset (drawing fresh Gaussians would cost ~20 ms a frame)
+        self._normals = np.random.default_rng([int(cfg.seed), 77]).standard_normal(
+            4 * H * W + (1 << 20), dtype=np.float32)
+        self.timings: dict[str, float] = {}
+        self._clock = time.perf_counter  # stage timer (a benchmark may swap in process_time)
 
     # -------------------------------------------------------------- per-surface tables
     def _prepare_surfaces(self) -> None:
@@ -330,149 +339,181 @@ class SynthRenderer:
 
     # ------------------------------------------------------------------------- render
     def render(self, pose_world_base, index: int = 0, stamp: float = 0.0) -> SynthFrame:
-        """Render the view from base pose ``(x, y, theta)`` (3,) in the world."""
-        import cv2
+        """Render the view from base pose ``(x, y, theta)`` (3,) in the world.
+
+        Stage times accumulate in :attr:`timings` (seconds).
+        """
         import open3d as o3d
 
-        cfg = self.cfg
+        cfg, tm, f32 = self.cfg, self.timings, np.float32
         H, W = cfg.height, cfg.width
         N = H * W
+        t0 = self._clock()
         pose = np.asarray(pose_world_base, dtype=np.float64).reshape(3)
         T_wc = se2_to_matrix(pose) @ self.mount.T_base_cam
         R, c = T_wc[:3, :3], T_wc[:3, 3]
         rng = np.random.default_rng([int(cfg.seed), int(index), 3])
-
-        # rays with direction R @ (xn, yn, 1): t_hit is then the optical-axis depth z
-        rays = self._rays
-        rays[:, 0:3] = c.astype(np.float32)
         xn, yn = self._xn, self._yn
-        for k in range(3):
-            np.multiply(xn, np.float32(R[k, 0]), out=rays[:, 3 + k])
-            rays[:, 3 + k] += yn * np.float32(R[k, 1])
-            rays[:, 3 + k] += np.float32(R[k, 2])
-        hits = self._rc.cast_rays(o3d.core.Tensor.from_numpy(rays))
+
+        # Ray cast in the camera frame: the rays (0, (xn, yn, 1)) never change, so t_hit is
+        # the optical-axis depth z; moving the few hundred vertices and rebuilding the BVH
+        # is cheaper than rotating half a million ray directions.
+        V_cam = ((self._vertices - c) @ R).astype(f32)
+        rc = o3d.t.geometry.RaycastingScene()
+        rc.add_triangles(o3d.core.Tensor.from_numpy(V_cam), self._triangles)
+        t1 = self._clock()
+        hits = rc.cast_rays(self._rays)
         z = hits["t_hit"].numpy()
         prim = hits["primitive_ids"].numpy()
-        sid = self._tri_surface[np.minimum(prim, self._n_tri)]
-        S = len(self.surfaces)
+        t2 = self._clock()
 
-        order = np.argsort(sid, kind="stable")  # radix sort on int16
+        S = len(self.surfaces)
+        sid = self._tri_surface[np.minimum(prim, self._n_tri)]  # S where the ray missed
+        order = np.argsort(sid, kind="stable")  # radix sort: pixels grouped by surface
         counts = np.bincount(sid, minlength=S + 1)
         n_hit = N - int(counts[S])
         idx = order[:n_hit]
-        zs = z[idx]
-        xs, ys = xn[idx], yn[idx]
-        cos_s = np.empty(n_hit, np.float32)
-        colour = np.empty((n_hit, 3), np.float32)
+        zs, xs, ys = z[idx], xn[idx], yn[idx]
         starts = np.concatenate([[0], np.cumsum(counts[:S])])
-        Rt = R.T
+        t3 = self._clock()
 
+        cos_s = np.empty(n_hit, f32)
+        px, py = np.empty(n_hit, f32), np.empty(n_hit, f32)
         tex = self.textures
         if tex is not None:
-            tx = np.empty(n_hit, np.float32)
-            ty = np.empty(n_hit, np.float32)
-            foot = np.empty(n_hit, np.float32)
-        px = np.empty(n_hit, np.float32)
-        py = np.empty(n_hit, np.float32)
-        f32 = np.float32
-        for s in np.nonzero(counts[:S])[0]:
+            tx, ty, foot = np.empty(n_hit, f32), np.empty(n_hit, f32), np.empty(n_hit, f32)
+        Rt = R.T
+        visible = np.nonzero(counts[:S])[0]
+        inv_norm = self._inv_norm[idx]
+        for s in visible:
             a, b = starts[s], starts[s + 1]
             zz, xx, yy = zs[a:b], xs[a:b], ys[a:b]
             surf = self.surfaces[s]
+            # |cos| of the incidence angle: n_cam . (xn, yn, 1) / |(xn, yn, 1)|
             n_cam = Rt @ surf.normal
             cs = cos_s[a:b]
-            np.abs(f32(n_cam[0]) * xx + f32(n_cam[1]) * yy + f32(n_cam[2]), out=cs)
-            cs *= self._inv_norm[idx[a:b]]
-            # world x, y of the hit: c + z * R (xn, yn, 1)
-            px[a:b] = zz * (f32(R[0, 0]) * xx + f32(R[0, 1]) * yy + f32(R[0, 2])) + f32(c[0])
-            py[a:b] = zz * (f32(R[1, 0]) * xx + f32(R[1, 1]) * yy + f32(R[1, 2])) + f32(c[1])
-            if tex is None:
-                continue
-            # surface coordinate u = (c + z d - origin) . axis_u = z (R^T axis_u) . (xn, yn, 1) + const
-            for out, axis, scale, off in ((tx, surf.axis_u, self._su[s], self._ou[s]),
-                                          (ty, surf.axis_v, self._sv[s], self._ov[s])):
-                A = scale * (Rt @ axis)
-                B = scale * float((c - surf.origin) @ axis) + off
+            np.multiply(xx, f32(n_cam[0]), out=cs)
+            cs += yy * f32(n_cam[1])
+            cs += f32(n_cam[2])
+            np.abs(cs, out=cs)
+            cs *= inv_norm[a:b]
+            # any affine function of the hit point is z * (A . (xn, yn, 1)) + B
+            todo = [(px, R[0], c[0]), (py, R[1], c[1])]
+            if tex is not None:
+                for axis, scale, off, out in ((surf.axis_u, self._su[s], self._ou[s], tx),
+                                              (surf.axis_v, self._sv[s], self._ov[s], ty)):
+                    todo.append((out, scale * (Rt @ axis), scale * float((c - surf.origin) @ axis) + off))
+                # pixel footprint in level-0 texels (isotropic compromise for oblique views)
+                np.multiply(zz, f32(abs(self._su[s]) / cfg.fx), out=foot[a:b])
+                foot[a:b] /= np.sqrt(np.maximum(cs, f32(0.05)))
+            for out, A, B in todo:
                 o = out[a:b]
                 np.multiply(xx, f32(A[0]), out=o)
                 o += yy * f32(A[1])
                 o += f32(A[2])
                 o *= zz
                 o += f32(B)
-            # pixel footprint in texels (isotropic compromise for oblique views)
-            np.multiply(zz, f32(abs(self._su[s]) / cfg.fx), out=foot[a:b])
-            foot[a:b] /= np.sqrt(np.maximum(cs, f32(0.05)))
+        t4 = self._clock()
 
-        # shading: per-surface Lambert term x (1 + lamp pools), world-fixed
-        lo = self._light_origin
-        lmx = ((px - lo[0]) / self._light_res).reshape(-1, 1)
-        lmy = ((py - lo[1]) / self._light_res).reshape(-1, 1)
-        light = _remap_points(self._light, lmx.ravel(), lmy.ravel(), cv2.BORDER_REPLICATE).reshape(-1)
-        shade = np.repeat(self._diffuse[:S].astype(np.float32), counts[:S]) * (f32(0.8) + f32(0.35) * light)
-
+        # colour = material colour x per-surface (tint x Lambert term)
+        colour = np.empty((n_hit, 3), f32)
+        coef = self._tint * self._diffuse[:, None]
         if tex is None:
-            colour[:] = np.repeat(self._flat.astype(np.float32), counts[:S], axis=0)
+            for s in visible:
+                colour[starts[s]:starts[s + 1]] = self._flat[s] * self._diffuse[s]
         else:
             lod = np.log2(np.maximum(foot, f32(1e-6)))
-            tex_of_pixel = np.repeat(self._tex, counts[:S])
-            bounds = np.searchsorted(tex_of_pixel, np.arange(len(tex.textures) + 1))
+            tbounds = starts[np.searchsorted(self._tex, np.arange(len(tex.textures) + 1))]
+            c8 = np.empty((n_hit, 3), np.uint8)
             for t_id, texture in enumerate(tex.textures):
-                a, b = bounds[t_id], bounds[t_id + 1]
+                a, b = tbounds[t_id], tbounds[t_id + 1]
                 if b > a:
-                    colour[a:b] = _sample_trilinear(texture, tx[a:b], ty[a:b], lod[a:b])
-            colour *= np.repeat(self._tint.astype(np.float32), counts[:S], axis=0)
-        colour *= shade[:, None]
+                    c8[a:b] = _sample_trilinear(texture, tx[a:b], ty[a:b], lod[a:b])
+            for s in visible:
+                a, b = starts[s], starts[s + 1]
+                np.multiply(c8[a:b], coef[s].astype(f32), out=colour[a:b])
+        t5 = self._clock()
 
-        img = np.zeros((N, 3), np.float32)
-        img[idx] = colour
-        img = img.reshape(H, W, 3)
-        img *= self._vignette
+        # world-fixed lamp pools x camera vignetting, then sensor noise
+        lo, res = self._light_origin, self._light_res
+        px -= f32(lo[0])
+        px *= f32(1.0 / res)
+        py -= f32(lo[1])
+        py *= f32(1.0 / res)
+        light = _remap_points(self._light, px, py, border=_BORDER_REPLICATE)
+        light *= f32(0.35)
+        light += f32(0.8)
+        light *= self._vignette[idx]
+        colour *= light[:, None]
+        buf = self._normals
         if cfg.image_noise > 0:
-            oy, ox = rng.integers(0, 64, 2)
-            img += self._img_noise[oy:oy + H, ox:ox + W]
-        color = np.clip(img, 0.0, 255.0).astype(np.uint8)
+            off = int(rng.integers(0, len(buf) - 3 * n_hit))
+            colour += buf[off: off + 3 * n_hit].reshape(n_hit, 3) * f32(cfg.image_noise)
+        colour += f32(0.5)
+        np.clip(colour, 0.0, 255.0, out=colour)
+        color = np.zeros((H, W, 3), np.uint8)
+        color.reshape(-1).view("V3")[idx] = colour.astype(np.uint8).view("V3").ravel()
+        t6 = self._clock()
 
         # ---------------------------------------------------------------------- depth
-        hit = sid < S
-        z_true = np.where(hit, z, np.float32(0.0)).astype(np.float32)
-        cos_full = np.ones(N, np.float32)
+        z_true = np.where(sid < S, z, f32(0.0))
+        cos_full = np.ones(N, f32)
         cos_full[idx] = cos_s
         depth = self._depth(z_true, cos_full, rng)
+        t7 = self._clock()
 
         labels = self._label[sid]
-        in_range = (z_true >= cfg.depth_min) & (z_true <= cfg.depth_max)
+        in_range = (z_true >= f32(cfg.depth_min)) & (z_true <= f32(cfg.depth_max))
         labels = np.where(in_range, labels, np.uint8(0)).reshape(H, W)
         truth = self._truth(labels, sid, pose, T_wc)
         truth["depth_true"] = z_true.reshape(H, W)
         rgbd = RGBDFrame(index=int(index), stamp=float(stamp), color=color, depth=depth,
                          depth_stamp=float(stamp), meta={"source": "synth", "layout": cfg.layout})
+        t8 = self._clock()
+        for name, dt in (("rays", t1 - t0), ("cast", t2 - t1), ("sort", t3 - t2), ("surfaces", t4 - t3),
+                         ("texture", t5 - t4), ("compose", t6 - t5), ("depth", t7 - t6), ("truth", t8 - t7),
+                         ("total", t8 - t0)):
+            tm[name] = tm.get(name, 0.0) + dt
+        tm["frames"] = tm.get("frames", 0) + 1
         return SynthFrame(rgbd, T_wc, pose.copy(), truth)
 
     def _depth(self, z_true: np.ndarray, cos_full: np.ndarray, rng) -> np.ndarray:
-        """Kinect v2-like measured depth (H, W) float32 from the true z (N,)."""
-        cfg = self.cfg
+        """Kinect v2-like measured depth (H, W) float32 from the true z (N,) float32."""
+        cfg, f32 = self.cfg, np.float32
         H, W = cfg.height, cfg.width
-        d = z_true.copy()
+        N = H * W
         if cfg.depth_noise:
-            sigma = np.float32(cfg.depth_sigma0) + np.float32(cfg.depth_sigma2) * d * d
-            d += sigma * rng.standard_normal(d.shape[0], dtype=np.float32)
-            d = np.round(d * np.float32(1000.0)) * np.float32(0.001)  # whole millimetres
-        d[(d < cfg.depth_min) | (d > cfg.depth_max) | (z_true <= 0)] = 0.0
-        d[cos_full < cfg.depth_min_cos] = 0.0
+            buf = self._normals
+            off = int(rng.integers(0, len(buf) - N))
+            d = z_true * z_true
+            d *= f32(cfg.depth_sigma2)
+            d += f32(cfg.depth_sigma0)
+            d *= buf[off: off + N]
+            d += z_true
+            d *= f32(1000.0)
+            np.rint(d, out=d)
+            d *= f32(0.001)  # whole millimetres
+        else:
+            d = z_true.copy()
+        bad = (d < f32(cfg.depth_min)) | (d > f32(cfg.depth_max)) | (cos_full < f32(cfg.depth_min_cos))
+        d[bad] = 0.0
         d = d.reshape(H, W)
-        if cfg.depth_noise and cfg.depth_edge_holes:
+        if not cfg.depth_noise:
+            return d
+        if cfg.depth_edge_holes:
             d[_edge_holes(z_true.reshape(H, W), rng)] = 0.0
-        if cfg.depth_noise and cfg.dropout_rate > 0:
-            k = rng.poisson(cfg.dropout_rate * H * W)
-            d.reshape(-1)[rng.integers(0, H * W, k)] = 0.0
-        if cfg.depth_noise and cfg.dropout_blobs > 0:
+        if cfg.dropout_rate > 0:
+            d.reshape(-1)[rng.integers(0, N, rng.poisson(cfg.dropout_rate * N))] = 0.0
+        if cfg.dropout_blobs > 0:
             import cv2
             for _ in range(rng.poisson(cfg.dropout_blobs)):
-                centre = (int(rng.integers(0, W)), int(rng.integers(0, H)))
-                axes = (int(rng.integers(2, 7)), int(rng.integers(2, 7)))
-                mask = np.zeros((H, W), np.uint8)
-                cv2.ellipse(mask, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
-                d[mask.astype(bool)] = 0.0
+                cx, cy = int(rng.integers(0, W)), int(rng.integers(0, H))
+                ax, ay = int(rng.integers(2, 7)), int(rng.integers(2, 7))
+                y0, x0 = max(cy - 7, 0), max(cx - 7, 0)
+                sub = d[y0: cy + 8, x0: cx + 8]
+                mask = np.zeros(sub.shape, np.uint8)
+                cv2.ellipse(mask, (cx - x0, cy - y0), (ax, ay), float(rng.uniform(0, 180)), 0, 360, 1, -1)
+                sub[mask.astype(bool)] = 0.0
         return d
 
     def _truth(self, labels: np.ndarray, sid: np.ndarray, pose: np.ndarray, T_wc: np.ndarray) -> dict:
@@ -522,55 +563,75 @@ def _edge_holes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return mask
 
 
-def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
-    """Bilinear samples of ``img`` at float32 points (n,) -> (n, C) (or (n,) for 2-D images).
+_BORDER_REPLICATE, _BORDER_WRAP = 1, 3  # cv2.BORDER_REPLICATE, cv2.BORDER_WRAP
 
-    OpenCV limits map sizes to < 32767 per side, so points go in as rows of 1024.
+
+def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int,
+                  keep_rows: bool = False) -> np.ndarray:
+    """Bilinear samples of ``img`` at float32 points (n,): (n, C) (or (n,) for 2-D images).
+
+    OpenCV limits map sizes to < 32767 per side, so points go in as rows of 1024;
+    ``keep_rows`` returns that padded (rows, 1024, C) image instead.
     """
     import cv2
     n = len(x)
     cols = 1024
     rows = -(-n // cols)
-    mx = np.zeros(rows * cols, np.float32)
-    my = np.zeros(rows * cols, np.float32)
-    mx[:n], my[:n] = x, y
-    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border)
+    if rows * cols == n:
+        mx, my = x.reshape(rows, cols), y.reshape(rows, cols)
+    else:
+        mx = np.zeros(rows * cols, np.float32)
+        my = np.zeros(rows * cols, np.float32)
+        mx[:n], my[:n] = x, y
+        mx, my = mx.reshape(rows, cols), my.reshape(rows, cols)
+    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=border)
+    if keep_rows:
+        return out
     return out.reshape(rows * cols, *img.shape[2:])[:n]
 
 
 def _sample_trilinear(texture, tx: np.ndarray, ty: np.ndarray, lod: np.ndarray) -> np.ndarray:
-    """Trilinear (mip-mapped) samples (n, 3) float32 of a texture at level-0 texel coords."""
+    """Trilinear (mip-mapped) samples (n, 3) uint8 of a texture at level-0 texel coords.
+
+    ``lod``: log2 of the pixel footprint in level-0 texels. Each pixel is sampled at
+    levels ``floor(lod)`` and ``floor(lod) + 1`` of the packed pyramid (two remap calls
+    in all) and blended.
+    """
     import cv2
+    f32 = np.float32
     nlev = len(texture.levels)
-    lod = np.clip(lod, 0.0, nlev - 1.0001).astype(np.float32)
-    l0 = lod.astype(np.int8)
+    lod = np.clip(lod, 0.0, nlev - 1.001)
+    l0 = lod.astype(np.uint8)
     frac = lod - l0
-    order = np.argsort(l0, kind="stable")
-    lc = np.bincount(l0, minlength=nlev)
-    start = np.concatenate([[0], np.cumsum(lc)])
-    out = np.empty((len(tx), 3), np.float32)
-    txo, tyo, fo = tx[order], ty[order], frac[order]
-    res = np.empty((len(tx), 3), np.float32)
-    border = cv2.BORDER_WRAP if texture.periodic else cv2.BORDER_REPLICATE
-    for lev in range(nlev):
-        a, b = start[lev], start[lev + 1]
-        if b == a:
-            continue
-        acc = None
-        for lv, w in ((lev, 1.0 - fo[a:b]), (min(lev + 1, nlev - 1), fo[a:b])):
-            img = texture.levels[lv]
-            h, wd = img.shape[:2]
-            sc = np.float32(0.5 ** lv)
-            x = (txo[a:b] + np.float32(0.5)) * sc - np.float32(0.5)
-            y = (tyo[a:b] + np.float32(0.5)) * sc - np.float32(0.5)
-            if texture.periodic:
-                x = np.mod(x, np.float32(wd))
-                y = np.mod(y, np.float32(h))
-            smp = _remap_points(img, x, y, border).astype(np.float32)
-            acc = smp * w[:, None] if acc is None else acc + smp * w[:, None]
-        res[a:b] = acc
-    out[order] = res
-    return out
+    sc = np.take(texture.scale, l0)
+    x = tx + f32(0.5)
+    x *= sc
+    x -= f32(0.5)
+    y = ty + f32(0.5)
+    y *= sc
+    y -= f32(0.5)
+    if texture.periodic:  # wrap into the level; the next level then needs only its border
+        w, h = np.take(texture.w, l0), np.take(texture.h, l0)
+        x -= np.floor(x / w) * w
+        y -= np.floor(y / h) * h
+    # level l0 + 1 coordinates from level l0 ones
+    x1 = x + f32(0.5)
+    x1 *= f32(0.5)
+    x1 -= f32(0.5)
+    y1 = y + f32(0.5)
+    y1 *= f32(0.5)
+    y1 -= f32(0.5)
+    l1 = l0 + np.uint8(1)
+    x += np.take(texture.ox, l0)
+    y += np.take(texture.oy, l0)
+    x1 += np.take(texture.ox, l1)
+    y1 += np.take(texture.oy, l1)
+    a = _remap_points(texture.packed, x, y, _BORDER_REPLICATE, keep_rows=True)
+    b = _remap_points(texture.packed, x1, y1, _BORDER_REPLICATE, keep_rows=True)
+    wb = np.zeros(a.shape[:2], f32)
+    wb.reshape(-1)[:len(frac)] = frac
+    out = cv2.blendLinear(a, b, f32(1.0) - wb, wb)
+    return out.reshape(-1, 3)[:len(frac)]
 
 
 # ------------------------------------------------------------------------------ streams
@@ -586,21 +647,12 @@ def render_sequence(cfg: SynthConfig, frames: Iterable[int] | None = None) -> It
         yield renderer.render(poses[i], i, stamps[i])
 
 
-def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray) -> None:
-    try:
-        from planar_vo.io import write_tum_trajectory  # type: ignore[attr-defined]
-    except ImportError:
-        write_tum_trajectory = None
-    if write_tum_trajectory is not None:
-        from planar_vo.io.types import Trajectory
-        write_tum_trajectory(path, Trajectory(stamps, poses))
-        return
-    from planar_vo.geometry import pose7_from_matrix
-    from planar_vo.io.atomic import write_text_atomic
-    lines = ["# timestamp tx ty tz qx qy qz qw  (camera optical frame in world, synthetic ground truth)"]
-    for t, T in zip(stamps, poses):
-        lines.append(f"{t:.9f} " + " ".join(f"{v:.9f}" for v in pose7_from_matrix(T)))
-    write_text_atomic(path, "\n".join(lines) + "\n")
+def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfig) -> None:
+    from planar_vo.io.trajectory import write_tum_trajectory
+    from planar_vo.io.types import Trajectory
+    write_tum_trajectory(path, Trajectory(stamps, poses),
+                         header=f"planar-vo synth ground truth: camera optical frame in world (z up)\n"
+                                f"layout={cfg.layout} seed={cfg.seed} frames={cfg.n_frames} texture={cfg.texture}")
 
 
 def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
@@ -611,33 +663,49 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     camera_info, the mount on ``/tf_static``, ground truth on ``/ground_truth``) in the
     ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from planar_vo.io.mcap_writer import RGBDLogWriter
 
     out = os.fspath(out_path)
+    parent = os.path.dirname(os.path.abspath(out))
+    if not os.path.isdir(parent):
+        raise InputError(f"output {out}: directory {parent} does not exist; create it first")
     base = out[:-5] if out.endswith(".mcap") else out
     gt_path = base + ".gt.tum"
     renderer = SynthRenderer(cfg)
     stamps, poses = _trajectory(cfg, renderer.scene)
     T_wc = np.empty((cfg.n_frames, 4, 4))
-    t0 = time.perf_counter()
     try:
         writer = RGBDLogWriter(out, renderer.intrinsics, profile=profile, mount=renderer.mount,
                                color_encoding=color_encoding, depth_encoding=depth_encoding)
     except ValueError as exc:
         raise InputError(f"synthetic log {out}: {exc}") from None
-    with writer:
+
+    def put(frame: SynthFrame) -> None:
+        writer.write(frame.rgbd)
+        writer.write_ground_truth(frame.rgbd.stamp, frame.T_world_cam)
+
+    t0 = time.perf_counter()
+    # encode and write frame k on a worker thread while frame k + 1 renders (OpenCV's
+    # encoders and most numpy work release the GIL)
+    with writer, ThreadPoolExecutor(max_workers=1) as pool:
+        pending = None
         for i in range(cfg.n_frames):
             f = renderer.render(poses[i], i, stamps[i])
-            writer.write(f.rgbd)
-            writer.write_ground_truth(f.rgbd.stamp, f.T_world_cam)
             T_wc[i] = f.T_world_cam
+            if pending is not None:
+                pending.result()
+            pending = pool.submit(put, f)
             if progress and (i % 10 == 9 or i == cfg.n_frames - 1):
                 rate = (i + 1) / max(time.perf_counter() - t0, 1e-9)
                 print(f"\rsynth {cfg.layout}: frame {i + 1}/{cfg.n_frames}  {rate:.1f} frames/s",
                       end="", file=sys.stderr, flush=True)
+        if pending is not None:
+            pending.result()
     if progress:
         print(file=sys.stderr)
-    _write_tum(gt_path, stamps, T_wc)
+    _write_tum(gt_path, stamps, T_wc, cfg)
     return {"log": out, "ground_truth": gt_path}
 
 

@@ -25,6 +25,8 @@ MAT_FLOOR, MAT_WALL, MAT_CEILING, MAT_CONCRETE, MAT_POSTER, MAT_DOOR, MAT_BOX = 
 MATERIAL_NAMES = ("floor", "wall", "ceiling", "concrete", "poster", "door", "box")
 
 _Z = np.array([0.0, 0.0, 1.0])
+#: wall paints as BGR multipliers of the white base: white, warm beige, pale blue, pale green, grey
+_PAINTS = ((1.0, 1.0, 1.0), (0.86, 0.94, 1.0), (1.0, 0.95, 0.86), (0.88, 1.0, 0.9), (0.93, 0.93, 0.93))
 
 
 @dataclass
@@ -190,7 +192,9 @@ class _Builder:
         self.surfaces: list[Surface] = []
         self.walls: list[tuple[np.ndarray, np.ndarray, int, np.ndarray]] = []  # q0, q1, mframe, tint
         self.boxes: list[tuple[np.ndarray, float]] = []  # footprint centre, radius
-        self.tint = np.array([1.0, 1.0, 1.0]) - rng.uniform(0.0, 0.12, 3)  # pale paint colour
+        # pale paint colours (BGR multipliers), one per local Manhattan frame
+        pick = rng.permutation(len(_PAINTS))
+        self.paints = [np.array(_PAINTS[pick[k % len(_PAINTS)]]) for k in range(len(headings))]
 
     def frame_of(self, d) -> int:
         ang = math.atan2(d[1], d[0])
@@ -209,7 +213,7 @@ class _Builder:
                 continue
             d = (q1 - q0) / ln
             k = self.frame_of(d)
-            tint = self.tint * (1.0 + self.rng.normal(0.0, 0.015, 3))
+            tint = self.paints[k] * (1.0 + self.rng.normal(0.0, 0.01))
             self.surfaces.append(Surface(
                 LABEL_WALL, MAT_WALL, np.array([q1[0], q1[1], 0.0]), np.array([-d[0], -d[1], 0.0]), _Z.copy(),
                 (ln, self.h), mframe=k, tint=tint, offset=(float(self.rng.uniform(0, 5.12)), 0.0)))

@@ -50,10 +50,40 @@ N_POSTERS, N_DOORS, N_BOXES = 24, 4, 12
 
 @dataclass
 class Texture:
-    """One material: ``levels[l]`` is the image at mip level ``l`` (half size per level)."""
+    """One material: ``levels[l]`` is the image at mip level ``l`` (half size per level).
+
+    ``packed`` holds every level in one image (level 0 on the left, the others stacked
+    in a column to its right), each framed by a 1-texel border (wrapped copies for
+    periodic textures, replicated edges otherwise), so a single ``cv2.remap`` call can
+    sample different levels per pixel. ``ox``/``oy`` (float32, per level) locate each
+    level's texel (0, 0) in ``packed``; ``w``/``h`` are the level sizes.
+    """
 
     levels: list[np.ndarray]
     periodic: bool
+
+    def __post_init__(self) -> None:
+        P = 1
+        border = cv2.BORDER_WRAP if self.periodic else cv2.BORDER_REPLICATE
+        h0, w0 = self.levels[0].shape[:2]
+        rest_h = sum(lv.shape[0] + 2 * P for lv in self.levels[1:])
+        rest_w = self.levels[1].shape[1] + 2 * P if len(self.levels) > 1 else 0
+        packed = np.zeros((max(h0 + 2 * P, rest_h), w0 + 2 * P + rest_w, 3), np.uint8)
+        ox, oy = [], []
+        y = 0
+        for i, lv in enumerate(self.levels):
+            h, w = lv.shape[:2]
+            x0, y0 = (0, 0) if i == 0 else (w0 + 2 * P, y)
+            packed[y0:y0 + h + 2 * P, x0:x0 + w + 2 * P] = cv2.copyMakeBorder(lv, P, P, P, P, border)
+            ox.append(x0 + P)
+            oy.append(y0 + P)
+            if i > 0:
+                y += h + 2 * P
+        self.packed = packed
+        self.ox, self.oy = np.array(ox, np.float32), np.array(oy, np.float32)
+        self.w = np.array([lv.shape[1] for lv in self.levels], np.float32)
+        self.h = np.array([lv.shape[0] for lv in self.levels], np.float32)
+        self.scale = np.array([0.5 ** i for i in range(len(self.levels))], np.float32)
 
     @property
     def shape(self) -> tuple[int, int]:
