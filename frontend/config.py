@@ -63,6 +63,7 @@ class PlaneConfig:
     wall_tilt_deg: float = 6.0       # wall normal within this of horizontal
     unlevelled_tilt_deg: float = 30.0  # floor search range while the tilt is still unknown
     refit_iterations: int = 2
+    systematic_fraction: float = 0.3  # share of the depth noise assumed correlated across a plane
 
     def __post_init__(self) -> None:
         _positive("planes", stride=self.stride, min_depth=self.min_depth,
@@ -76,7 +77,7 @@ class PlaneConfig:
 class ManhattanConfig:
     """Grouping vertical planes into local Manhattan frames and tracking them."""
 
-    group_tol_deg: float = 4.0       # normals parallel/perpendicular within this
+    group_tol_deg: float = 2.5       # normals parallel/perpendicular within this
     min_sigma_deg: float = 0.15      # floor on a frame's yaw sigma (model error, levelling)
     track_gate_deg: float = 8.0      # association gate after rotation prediction
     max_missed: int = 15             # frames a track survives unseen
@@ -92,12 +93,15 @@ class FeatureConfig:
     """Corner detection and frame-to-frame association in the colour image."""
 
     method: Literal["klt", "orb"] = "klt"
-    max_corners: int = 400
+    max_corners: int = 300
     quality_level: float = 0.01      # Shi-Tomasi relative quality (klt)
     min_distance: int = 12           # pixels between corners (klt)
-    block_size: int = 5
-    klt_window: int = 21
+    block_size: int = 3
+    detect_half: bool = True         # detect at half resolution, refine at full (klt)
+    klt_window: int = 15
     klt_levels: int = 3
+    klt_iterations: int = 10
+    klt_min_eig: float = 2e-3        # LK's minimum eigenvalue (per pixel^2, grey levels / 255)
     fb_check: bool = True            # forward-backward consistency (klt)
     fb_max_px: float = 1.0
     orb_features: int = 800
@@ -118,11 +122,16 @@ class OdometryConfig:
 
     min_inliers: int = 12            # fewer inliers: the estimator failed
     min_inlier_ratio: float = 0.3
+    dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
+    dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
+    dpp_min_score: float = 0.05      # local frames covering less image area are not used
     ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
     ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx
     ransac_iterations: int = 200
     seed: int = 0
-    max_step_yaw_deg: float = 40.0   # larger per-frame turns are implausible
+    max_step_yaw_deg: float = 20.0   # larger per-frame turns are implausible for a robot
+    max_sigma_xy: float = 0.05       # estimates less certain than this (m, deg) are failures
+    max_sigma_theta_deg: float = 1.0
     bridge: Literal["constant_velocity", "zero"] = "constant_velocity"
     bridge_sigma_xy: float = 1.0     # metres, std of a bridged step
     bridge_sigma_theta_deg: float = 30.0

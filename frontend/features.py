@@ -62,10 +62,10 @@ def undistort(px: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
 def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfig) -> np.ndarray:
     """3-D points (N, 3) float64 in the camera frame, NaN where depth is unusable.
 
-    Depth is the median of the valid readings in a ``(2 w + 1)^2`` window around each pixel
-    ``px`` (N, 2); a window whose valid readings spread by more than ``depth_edge_rel`` of
-    that median straddles a depth edge and is rejected, as are windows with fewer than half
-    of their readings valid.
+    Depth is read at the pixel nearest to ``px`` (N, 2) (the mean of its readable neighbours
+    if it has no reading itself); a ``(2 w + 1)^2`` window whose readings spread by more
+    than ``depth_edge_rel`` of that depth straddles a depth edge and is rejected, as are
+    windows with fewer than half of their readings valid.
     """
     n = len(px)
     out = np.full((n, 3), np.nan)
@@ -79,14 +79,13 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
     win = win.reshape(n, -1).astype(np.float64)
     ok = (win >= config.min_depth) & (win <= config.max_depth)
-    wn = np.where(ok, win, np.nan)
+    centre = win[:, win.shape[1] // 2]
+    # Depth of the pixel itself when readable, else the mean of the readable neighbours.
     cnt = ok.sum(1)
-    good = cnt * 2 > win.shape[1]
-    wg = np.where(good[:, None], wn, 0.0)  # rows with too few readings: dummy zeros
-    with np.errstate(all="ignore"):
-        z = np.nanmedian(wg, axis=1)
-        spread = np.nanmax(wg, axis=1) - np.nanmin(wg, axis=1)
-    good &= np.isfinite(z) & (spread <= config.depth_edge_rel * z)
+    mean = np.where(ok, win, 0.0).sum(1) / np.maximum(cnt, 1)
+    z = np.where(ok[:, win.shape[1] // 2], centre, mean)
+    spread = np.where(ok, win, -np.inf).max(1) - np.where(ok, win, np.inf).min(1)
+    good = (cnt * 2 > win.shape[1]) & (spread <= config.depth_edge_rel * z)
     # Points projected outside the image (clipped above) have no depth of their own.
     inside = (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
     good &= inside
@@ -113,7 +112,8 @@ class FeatureTracker:
         self._prev: FeatureSet | None = None
         self._prev_pyr = None
         self._win = (c.klt_window, c.klt_window)
-        self._crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
+        self._crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, c.klt_iterations, 0.03)
+        self._subpix_crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.05)
         if c.method == "orb":
             self._orb = cv2.ORB_create(nfeatures=c.orb_features, fastThreshold=12)
             self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
@@ -140,14 +140,18 @@ class FeatureTracker:
         kept_px = np.zeros((0, 2), np.float32)
         if prev is not None and len(prev):
             p0 = prev.px.reshape(-1, 1, 2)
+            # minEigThreshold drops windows without two strong gradient directions (edges of
+            # untextured surfaces slide along themselves and would fake "no motion").
             p1, st, _ = cv2.calcOpticalFlowPyrLK(self._prev_pyr, pyr, p0, None, winSize=self._win,
-                                                 maxLevel=c.klt_levels, criteria=self._crit)
+                                                 maxLevel=c.klt_levels, criteria=self._crit,
+                                                 minEigThreshold=c.klt_min_eig)
             ok = st.reshape(-1) == 1
             if c.fb_check and ok.any():
                 # Backward from the forward result, seeded with the forward motion.
                 p0b, stb, _ = cv2.calcOpticalFlowPyrLK(pyr, self._prev_pyr, p1, p0.copy(), winSize=self._win,
                                                        maxLevel=c.klt_levels, criteria=self._crit,
-                                                       flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+                                                       flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                                                       minEigThreshold=c.klt_min_eig)
                 fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
                 ok &= (stb.reshape(-1) == 1) & (fb <= c.fb_max_px)
             p1 = p1.reshape(-1, 2)
@@ -175,11 +179,23 @@ class FeatureTracker:
             mask = np.full(gray.shape, 255, np.uint8)
             for x, y in np.rint(existing).astype(np.int32):
                 cv2.circle(mask, (int(x), int(y)), c.min_distance, 0, -1)
-        pts = cv2.goodFeaturesToTrack(gray, maxCorners=want, qualityLevel=c.quality_level,
-                                      minDistance=c.min_distance, mask=mask, blockSize=c.block_size)
+        img = gray
+        if c.detect_half:
+            # Corners found at half resolution, positions refined at full resolution:
+            # a quarter of the detector's cost for the same corners.
+            img = cv2.pyrDown(gray)
+            if mask is not None:
+                mask = mask[::2, ::2].copy()
+        pts = cv2.goodFeaturesToTrack(img, maxCorners=want, qualityLevel=c.quality_level,
+                                      minDistance=max(1, c.min_distance // (2 if c.detect_half else 1)),
+                                      mask=mask, blockSize=c.block_size)
         if pts is None:
             return np.zeros((0, 2), np.float32)
-        return pts.reshape(-1, 2).astype(np.float32)
+        pts = pts.reshape(-1, 1, 2).astype(np.float32)
+        if c.detect_half:
+            pts = pts * 2.0 + 0.5
+            cv2.cornerSubPix(gray, pts, (3, 3), (-1, -1), self._subpix_crit)
+        return pts.reshape(-1, 2)
 
     # ----------------------------------------------------------------- ORB
     def _process_orb(self, gray, depth):

@@ -48,9 +48,9 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
 
     Greedy over walls by decreasing area: a wall joins the first frame whose heading is
     within ``group_tol_deg`` (modulo 90 degrees), else opens a new one. A frame's heading is
-    the inverse-variance weighted mean of its walls' (wrapped) headings; its sigma the
-    larger of the propagated fit sigma and the walls' weighted scatter, floored at
-    ``min_sigma_deg`` (levelling and model errors the fit does not see).
+    the area-weighted mean of its walls' (wrapped) headings; its sigma combines the
+    propagated fit sigma and the walls' weighted scatter, floored at ``min_sigma_deg``
+    (levelling and model errors the fit does not see).
     """
     c = config or ManhattanConfig()
     tol = math.radians(c.group_tol_deg)
@@ -79,15 +79,16 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
 
 
 def _mean_heading(walls: list[Plane], ref: float, floor_sigma: float) -> tuple[float, float]:
+    """Area-weighted mean heading near ``ref`` and its sigma (fit sigma + walls' scatter)."""
     d = np.array([float(wrap_quarter(w.yaw - ref)) for w in walls])
-    s = np.maximum([w.yaw_sigma for w in walls], floor_sigma * 0.25)
-    wt = 1.0 / s ** 2
-    mean = float((wt * d).sum() / wt.sum())
-    sigma = math.sqrt(1.0 / wt.sum())
-    if len(walls) > 1:
-        scatter = math.sqrt(float((wt * (d - mean) ** 2).sum() / wt.sum()) / (len(walls) - 1))
-        sigma = max(sigma, scatter)
-    return ref + mean, max(sigma, floor_sigma)
+    # Area weights (Sec. 2.1 scores frames by area): fit sigmas of thousands of pixels are
+    # tiny and would let a small box face outvote a wall.
+    wt = np.array([w.support for w in walls])
+    wt = wt / wt.sum()
+    mean = float((wt * d).sum())
+    fit_var = float((wt ** 2 * np.array([w.yaw_sigma for w in walls]) ** 2).sum())
+    scatter_var = float((wt * (d - mean) ** 2).sum()) if len(walls) > 1 else 0.0
+    return ref + mean, max(math.sqrt(fit_var + scatter_var), floor_sigma)
 
 
 @dataclass

@@ -191,7 +191,9 @@ class PlanarOdometry:
     def _detect_planes(self, depth: np.ndarray, info: dict) -> PlaneDetection:
         lev = self._levelling
         s = lev.state
-        det = self._planes.detect(depth, floor_offset_hint=s.height if s.ready else None, levelled=s.ready)
+        seed = self.last_detection.floor if self.last_detection is not None else None
+        det = self._planes.detect(depth, floor_offset_hint=s.height if s.ready else None, levelled=s.ready,
+                                  floor_seed=seed)
         floor = det.floor
         if floor is not None and lev.observe_floor(floor.normal, floor.offset, floor.support):
             old_R = self._planes.R_lev_cam
@@ -227,19 +229,32 @@ class PlanarOdometry:
         max_yaw = math.radians(c.max_step_yaw_deg)
         mount_se2 = geometry.mount_se2(self.mount.T_base_cam)
 
-        # 1. Direction-plus-point with the dominant local frame seen in both views.
+        # 1. Direction-plus-point with a local frame seen in both views: the dominant
+        # usable one, unless its 1-point inlier ratio is poor -- then the best of them.
         prev_sigma = {f.track_id: f.sigma for f in prev.frames}
+        n_depth = max(int(depth_ok.sum()), 1)
+        best = None
         for f in frames:
-            if f.prev_heading is None or f.track_id not in prev_sigma:
+            if f.prev_heading is None or f.track_id not in prev_sigma or f.score < c.dpp_min_score:
+                continue
+            yaw_sigma = math.hypot(f.sigma, prev_sigma[f.track_id])
+            if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
                 continue
             yaw = yaw_from_manhattan_headings(f.prev_heading, f.heading, yaw_prior)
-            yaw_sigma = math.hypot(f.sigma, prev_sigma[f.track_id])
             motion, est = estimate_planar_motion_dpp(P1, P2, yaw, self._dpp_opt, yaw_sigma=yaw_sigma)
-            n_in = est.num_inliers
-            info["dpp"] = {"status": est.status, "inliers": n_in, "track_id": f.track_id}
-            if motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * max(depth_ok.sum(), 1):
-                return self._accept(motion.yaw, motion.t, est.covariance, STATUS_DPP, n_in, mount_se2)
-            break  # only the dominant shared frame; a failure falls through to the 2-point method
+            info.setdefault("dpp", []).append({"status": est.status, "inliers": est.num_inliers,
+                                               "track_id": f.track_id, "yaw_sigma": yaw_sigma})
+            if motion is None or est.num_inliers < c.min_inliers:
+                continue
+            if best is None or est.num_inliers > best[1].num_inliers:
+                best = (motion, est)
+            if est.num_inliers >= 0.8 * n_depth:
+                break
+        if best is not None and best[1].num_inliers >= c.dpp_min_inlier_ratio * n_depth:
+            motion, est = best
+            step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_DPP, est.num_inliers, mount_se2, info)
+            if step is not None:
+                return step
 
         # 2. 2-point homography with metric scale from depth.
         if len(x1) >= 2:
@@ -248,7 +263,9 @@ class PlanarOdometry:
             info["2pt"] = {"status": est.status, "inliers": n_in, "iterations": est.iterations}
             if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
                     and abs(motion.yaw) <= max_yaw and est.covariance is not None):
-                return self._accept(motion.yaw, motion.t, est.covariance, STATUS_2PT, n_in, mount_se2)
+                step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_2PT, n_in, mount_se2, info)
+                if step is not None:
+                    return step
 
         # 3. Bridge, flagged.
         if c.bridge == "constant_velocity" and self._last_motion is not None:
@@ -260,9 +277,15 @@ class PlanarOdometry:
         info["bridge"] = c.bridge if self._last_motion is not None else "zero"
         return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t)
 
-    def _accept(self, yaw, t, cov, status, n_in, mount_se2):
+    def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
+        """The step of an estimate, or None when its own covariance says it is not determined."""
         c = self.config.odometry
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
+        sd = np.sqrt(np.maximum(np.diag(cov_b), 0.0))
+        if not (np.isfinite(cov_b).all() and sd[0] <= c.max_sigma_xy and sd[1] <= c.max_sigma_xy
+                and sd[2] <= math.radians(c.max_sigma_theta_deg)):
+            info.setdefault("rejected", []).append({"status": status, "sigma_xy_theta": sd.tolist()})
+            return None
         # Floors for what the inlier residuals cannot see (levelling, calibration).
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([c.min_sigma_xy ** 2, c.min_sigma_xy ** 2,
                                                    math.radians(c.min_sigma_theta_deg) ** 2])

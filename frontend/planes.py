@@ -37,7 +37,8 @@ class Plane:
     ``normal``: (3,) float64 unit vector from the camera towards the plane, so that
     ``normal . X_lev = offset`` with ``offset`` > 0 the camera-plane distance (m).
     ``support``: fraction of the (subsampled) image on the plane; ``n_points`` the count.
-    ``rms``: RMS inverse-depth residual (1/m), ``rms_rel`` relative depth. ``cov_q``: (3, 3) covariance of the fit
+    ``rms``: RMS inverse-depth residual (1/m), ``rms_rel`` relative depth. ``extent``:
+    angular width (rad) of the inliers across the image. ``cov_q``: (3, 3) covariance of the fit
     parameters ``q = normal / offset``. ``inliers``: (K,) int64 indices into the
     flattened subsampled grid (see :attr:`PlaneDetector.grid_shape`).
     """
@@ -51,6 +52,8 @@ class Plane:
     cov_q: np.ndarray
     inliers: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, np.int64))
     rms_rel: float = 0.0  # RMS relative depth residual
+    extent: float = 0.0   # angular width of the inliers along the histogram's image axis (rad)
+    systematic: float = 0.0
 
     @property
     def yaw(self) -> float:
@@ -60,11 +63,16 @@ class Plane:
 
     @property
     def yaw_sigma(self) -> float:
-        """Standard deviation (rad) of :attr:`yaw` propagated from ``cov_q``."""
+        """Standard deviation (rad) of :attr:`yaw`: the fit's ``cov_q`` propagated, plus a
+        systematic term for depth errors correlated across the plane (sensor bias, range
+        truncation), ``systematic * rms_rel / extent`` -- far, narrow walls are poor compasses.
+        """
         q = self.normal / self.offset
         r2 = q[0] ** 2 + q[2] ** 2
         J = np.array([-q[2] / r2, 0.0, q[0] / r2])
-        return float(math.sqrt(max(J @ self.cov_q @ J, 0.0)))
+        fit = max(J @ self.cov_q @ J, 0.0)
+        sys_ = self.systematic * self.rms_rel / max(self.extent, 1e-3)
+        return float(math.sqrt(fit + sys_ ** 2))
 
     @property
     def tilt(self) -> float:
@@ -167,71 +175,120 @@ class PlaneDetector:
         return idx, w
 
     def detect(self, depth: np.ndarray, floor_offset_hint: float | None = None,
-               levelled: bool = True, walls: bool = True) -> PlaneDetection:
+               levelled: bool = True, walls: bool = True, floor_seed: Plane | None = None) -> PlaneDetection:
         """Detect horizontal planes (floor first) and walls in ``depth`` (H, W) float32 metres.
 
         ``floor_offset_hint``: expected camera height (m); when given, the floor is the
-        strongest downward-facing plane within 30 % of it. ``levelled=False`` widens the
-        floor search to ``unlevelled_tilt_deg`` (tilt not yet known); ``walls=False``
-        stops after the horizontal planes.
+        strongest downward-facing plane within 30 % of it. ``floor_seed``: the previous
+        frame's floor (same levelled frame); under planar motion it is this frame's floor
+        too, so it is refitted directly and the horizontal Hough search is skipped when
+        that succeeds. ``levelled=False`` widens the floor search to
+        ``unlevelled_tilt_deg`` (tilt not yet known); ``walls=False`` stops after the
+        horizontal planes.
         """
         c = self.config
         idx, w = self.inverse_depth(depth)
+        pts = _Points(idx, w, self._x[idx], self._y[idx])
         tilt = c.horizontal_tilt_deg if levelled else c.unlevelled_tilt_deg
-        horizontals = self._detect_family(idx, w, self._ybin, self._y, self._horiz_angles[levelled],
-                                          vertical=False, max_planes=3, max_tilt_deg=tilt)
+        horizontals: list[Plane] = []
         floor = None
-        for p in horizontals:
-            if p.normal[1] > 0 and (floor_offset_hint is None or abs(p.offset - floor_offset_hint) < 0.3 * floor_offset_hint):
-                floor = p
-                break
+        if floor_seed is not None:
+            floor = self._refit_seed(pts, floor_seed.normal / floor_seed.offset, vertical=False, max_tilt_deg=tilt)
+            if floor is not None and floor.normal[1] > 0:
+                horizontals = [floor]
+            else:
+                floor = None
+        if floor is None:
+            horizontals = self._detect_family(pts, self._ybin, self._horiz_angles[levelled], vertical=False,
+                                              max_planes=2, max_tilt_deg=tilt)
+            for p in horizontals:
+                if p.normal[1] > 0 and (floor_offset_hint is None
+                                        or abs(p.offset - floor_offset_hint) < 0.3 * floor_offset_hint):
+                    floor = p
+                    break
+            if floor is not None:
+                horizontals.remove(floor)
+                horizontals.insert(0, floor)
         for p in horizontals:
             if p is floor:
                 p.kind = FLOOR
-            elif p.normal[1] < 0 and (floor is None or p.offset > 0.3):
+            elif p.normal[1] < 0:
                 p.kind = CEILING
-        if floor is not None:
-            horizontals.remove(floor)
-            horizontals.insert(0, floor)
-        keep = np.ones(len(idx), bool)
-        if horizontals:
-            taken = np.concatenate([p.inliers for p in horizontals])
-            keep[np.searchsorted(idx, taken)] = False
         found = []
         if walls:
-            found = self._detect_family(idx[keep], w[keep], self._xbin, self._x, self._wall_angles,
-                                        vertical=True, max_planes=c.max_walls, max_tilt_deg=c.wall_tilt_deg)
+            rest = pts
+            if horizontals:
+                keep = np.ones(len(idx), bool)
+                keep[np.searchsorted(idx, np.concatenate([p.inliers for p in horizontals]))] = False
+                rest = pts.subset(keep)
+            found = self._detect_family(rest, self._xbin, self._wall_angles, vertical=True,
+                                        max_planes=c.max_walls, max_tilt_deg=c.wall_tilt_deg)
         return PlaneDetection(floor, horizontals, found, len(idx), self.n_total)
 
     # ------------------------------------------------------------------ internals
-    def _detect_family(self, idx, w, ubin_all, u_all, angles, vertical: bool, max_planes: int,
+    def _refit_seed(self, pts: "_Points", q: np.ndarray, vertical: bool, max_tilt_deg: float) -> Plane | None:
+        """Fit the plane near a predicted ``q = n / d`` (no Hough); None if it is not there."""
+        c = self.config
+        tol = c.inlier_rel_depth
+        pred = pts.x * q[0] + pts.y * q[1] + q[2]
+        band = np.flatnonzero(np.abs(pts.w - pred) < 2.0 * tol * pts.w)
+        if len(band) < max(10, int(c.min_support * self.n_total)):
+            return None
+        plane = self._fit(pts.x[band], pts.y[band], pts.w[band], np.ones(len(band), bool), tol)
+        if not self._acceptable(plane, vertical, max_tilt_deg):
+            return None
+        plane.kind = WALL if vertical else HORIZONTAL
+        self._finish(plane, pts.x[band] if vertical else pts.y[band])
+        plane.inliers = pts.idx[band[plane.inliers]]
+        return plane
+
+    def _finish(self, plane: Plane, u: np.ndarray) -> None:
+        """Angular extent of the inliers (2nd-98th percentile of ``u``) and the error model."""
+        uu = u[plane.inliers]
+        if len(uu) > 400:
+            uu = uu[:: len(uu) // 200]
+        lo, hi = np.percentile(uu, [2.0, 98.0])
+        plane.extent = float(math.atan(hi) - math.atan(lo))
+        plane.systematic = self.config.systematic_fraction
+
+    def _acceptable(self, plane: Plane | None, vertical: bool, max_tilt_deg: float) -> bool:
+        c = self.config
+        if plane is None or plane.n_points < max(10, int(c.min_support * self.n_total)):
+            return False
+        n = plane.normal
+        if (abs(n[1]) if vertical else math.hypot(n[0], n[2])) > math.sin(math.radians(max_tilt_deg)):
+            return False
+        # Residuals spread evenly over the band (relative RMS -> tol / sqrt(3)) mean a line
+        # through clutter, not a surface; real planes sit well inside it.
+        return plane.rms_rel <= 0.45 * c.inlier_rel_depth
+
+    def _detect_family(self, pts: "_Points", ubin_all, angles, vertical: bool, max_planes: int,
                        max_tilt_deg: float) -> list[Plane]:
         c = self.config
         planes: list[Plane] = []
         min_pts = max(10, int(c.min_support * self.n_total))
-        if len(idx) < min_pts:
+        if len(pts.idx) < min_pts:
             return planes
+        idx, w = pts.idx, pts.w
+        u = pts.y if not vertical else pts.x
         nb, nw = c.n_image_bins, c.n_invdepth_bins
         w0, w1 = self._wr
-        wb = np.minimum(((w - w0) * (nw / (w1 - w0))).astype(np.int64), nw - 1)
-        u = u_all[idx]
+        wb = ((w - w0) * (nw / (w1 - w0))).astype(np.int32)
+        np.minimum(wb, nw - 1, out=wb)
         flat = ubin_all[idx] * nw + wb
-        cnt = np.bincount(flat, minlength=nb * nw).reshape(nb, nw).astype(np.float64)
+        cnt = np.bincount(flat, minlength=nb * nw).reshape(nb, nw).astype(np.float32)
         # Per row/column: local maxima of the count summed over 3 inverse-depth bins.
         c3 = _box3(cnt)
-        left = np.empty_like(c3)
-        left[:, 0] = -1.0
-        left[:, 1:] = c3[:, :-1]
-        right = np.empty_like(c3)
-        right[:, -1] = -1.0
-        right[:, :-1] = c3[:, 1:]
-        ci, cj = np.nonzero((c3 >= left) & (c3 > right) & (c3 >= c.min_cell_count))
+        peak = c3 >= c.min_cell_count
+        peak[:, 1:] &= c3[:, 1:] >= c3[:, :-1]
+        peak[:, :-1] &= c3[:, :-1] > c3[:, 1:]
+        ci, cj = np.nonzero(peak)
         if len(ci) == 0:
             return planes
-        # Cell means of w and u over the same 3 bins (bincount only where needed).
+        # Cell means of w and u over the same 3 bins.
         sw = np.bincount(flat, weights=w, minlength=nb * nw).reshape(nb, nw)
         su = np.bincount(flat, weights=u, minlength=nb * nw).reshape(nb, nw)
-        cw = c3[ci, cj]
+        cw = c3[ci, cj].astype(np.float64)
         jl, jr = np.maximum(cj - 1, 0), np.minimum(cj + 1, nw - 1)
         cell_w = (sw[ci, cj] + sw[ci, jl] * (cj > 0) + sw[ci, jr] * (cj < nw - 1)) / cw
         cell_u = (su[ci, cj] + su[ci, jl] * (cj > 0) + su[ci, jr] * (cj < nw - 1)) / cw
@@ -242,15 +299,13 @@ class PlaneDetector:
         lo = math.log(1.0 / 30.0)
         nd = int(math.ceil((math.log(1.0 / 0.1) - lo) / lbin_w))
         logd = (np.log(cell_w).astype(np.float32) - lo)[:, None] - np.log(np.where(ok, den, 1.0))
-        dbin = (logd * np.float32(1.0 / lbin_w)).astype(np.int64)
+        dbin = (logd * np.float32(1.0 / lbin_w)).astype(np.int32)
         ok &= (logd >= 0) & (dbin < nd)
         na = len(angles)
-        vote_idx = np.where(ok, np.arange(na)[None, :] * nd + dbin, -1)
+        vote_idx = np.where(ok, np.arange(na, dtype=np.int32)[None, :] * nd + dbin, -1)
         alive = np.ones(len(ci), bool)
         pool = np.ones(len(idx), bool)  # raw points not yet explained
-        xs, ys = self._x[idx], self._y[idx]
         tol = c.inlier_rel_depth
-        max_tilt = math.sin(math.radians(max_tilt_deg))
         failures = 0
         while len(planes) < max_planes and failures < 2 and alive.any():
             vi = vote_idx[alive]
@@ -272,22 +327,19 @@ class PlaneDetector:
             if len(band) < min_pts:
                 failures += 1
                 continue
-            sel = np.abs(w[band] - pred[band]) < 2.0 * tol * w[band]
-            plane = self._fit(xs[band], ys[band], w[band], sel, tol)
-            n = None if plane is None else plane.normal
-            if (plane is None or plane.n_points < min_pts
-                    or (abs(n[1]) if vertical else math.hypot(n[0], n[2])) > max_tilt
-                    or plane.rms_rel > 0.45 * tol):
-                # Too small, not vertical/horizontal, or residuals spread evenly over the
-                # band (relative RMS -> tol / sqrt(3)): a line through clutter, not a surface.
+            wb_ = w[band]
+            sel = np.abs(wb_ - pred[band]) < 2.0 * tol * wb_
+            xb, yb = pts.x[band], pts.y[band]
+            plane = self._fit(xb, yb, wb_, sel, tol)
+            if not self._acceptable(plane, vertical, max_tilt_deg):
                 failures += 1
                 continue
             plane.kind = WALL if vertical else HORIZONTAL
             # Points within twice the tolerance are explained (noise tails would otherwise
             # seed parallel ghost planes); the plane keeps its strict inliers.
             q = plane.normal / plane.offset
-            pred = xs[band] * q[0] + ys[band] * q[1] + q[2]
-            pool[band[np.abs(w[band] - pred) < 2.0 * tol * w[band]]] = False
+            pool[band[np.abs(wb_ - (xb * q[0] + yb * q[1] + q[2])) < 2.0 * tol * wb_]] = False
+            self._finish(plane, xb if vertical else yb)
             plane.inliers = idx[band[plane.inliers]]
             planes.append(plane)
         return planes
@@ -296,36 +348,63 @@ class PlaneDetector:
         """Least-squares ``w = q . (x, y, 1)`` over ``sel``, refitted on its own inliers.
 
         ``x, y, w``: (K,) candidate points; returns a Plane whose ``inliers`` index them.
+        The normal equations are accumulated with masked dot products (no copies).
         """
-        A = np.column_stack([x, y, np.ones(len(x))])
         q = None
+        thr = tol
+        rel = None
         for it in range(self.config.refit_iterations + 1):
-            As, bs = A[sel], w[sel]
-            if len(bs) < 10:
+            m = sel.astype(np.float64)
+            n = m.sum()
+            if n < 10:
                 return None
-            AtA = As.T @ As
+            xm, ym = x * m, y * m
+            AtA = np.array([[xm @ x, xm @ y, xm.sum()],
+                            [0.0, ym @ y, ym.sum()],
+                            [0.0, 0.0, n]])
+            AtA[1, 0], AtA[2, 0], AtA[2, 1] = AtA[0, 1], AtA[0, 2], AtA[1, 2]
+            Atb = np.array([xm @ w, ym @ w, m @ w])
             try:
-                q = np.linalg.solve(AtA, As.T @ bs)
+                q = np.linalg.solve(AtA, Atb)
             except np.linalg.LinAlgError:
                 return None
-            r_all = w - A @ q
-            sel = np.abs(r_all) < tol * w  # relative depth error within tol
+            rel = 1.0 - (x * q[0] + y * q[1] + q[2]) / w
+            if it > 0:
+                # Tighten to the sensor's own noise (3 robust sigmas): a loose band lets
+                # recessed doors or skirting boards tilt the fit.
+                mad = float(np.median(np.abs(rel[sel][::4])))
+                thr = min(tol, max(0.2 * tol, 3.0 * 1.4826 * mad))
+            sel = np.abs(rel) < thr  # relative depth error within the threshold
         k = np.flatnonzero(sel)
         if len(k) < 10:
             return None
-        Ak = A[k]
-        r = r_all[k]
+        xk, yk = x[k], y[k]
+        r = w[k] * rel[k]
         s2 = float(r @ r) / max(len(k) - 3, 1)
-        rms_rel = float(np.sqrt(np.mean((r / w[k]) ** 2)))
+        A = np.column_stack([xk, yk, np.ones(len(k))])
         try:
-            cov = s2 * np.linalg.inv(Ak.T @ Ak)
+            cov = s2 * np.linalg.inv(A.T @ A)
         except np.linalg.LinAlgError:
             return None
         nq = float(np.linalg.norm(q))
         if not nq > 0:
             return None
         return Plane(kind="", normal=q / nq, offset=1.0 / nq, support=len(k) / self.n_total,
-                     n_points=len(k), rms=math.sqrt(s2), cov_q=cov, inliers=k, rms_rel=rms_rel)
+                     n_points=len(k), rms=math.sqrt(s2), cov_q=cov, inliers=k,
+                     rms_rel=float(np.sqrt(np.mean(rel[k] ** 2))))
+
+
+@dataclass
+class _Points:
+    """Valid grid samples of one frame: grid index, inverse depth, levelled x and y."""
+
+    idx: np.ndarray
+    w: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> "_Points":
+        return _Points(self.idx[keep], self.w[keep], self.x[keep], self.y[keep])
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
