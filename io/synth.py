@@ -492,10 +492,12 @@ class SynthRenderer:
             d += z_true
             d *= f32(1000.0)
             np.rint(d, out=d)
-            d *= f32(0.001)  # whole millimetres
+            d /= f32(1000.0)  # whole millimetres, bit-identical to a 16UC1 image read back
         else:
             d = z_true.copy()
-        bad = (d < f32(cfg.depth_min)) | (d > f32(cfg.depth_max)) | (cos_full < f32(cfg.depth_min_cos))
+        bad = (d < f32(cfg.depth_min)) | (d > f32(cfg.depth_max))
+        if cfg.depth_noise:  # no return at grazing incidence
+            bad |= cos_full < f32(cfg.depth_min_cos)
         d[bad] = 0.0
         d = d.reshape(H, W)
         if not cfg.depth_noise:

@@ -401,7 +401,7 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
     B = _Builder(layout, rng, h, headings)
     path_pts = path.samples(0.1)
     if layout == "hall":
-        x0, x1 = -3.5, P[1, 0] + 3.0
+        x0, x1 = -4.5, P[1, 0] + 3.0  # walls come into range at the U-turn only
         y0, y1 = -5.5, 2 * 1.5 + 5.5
         B.ring(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]))
         bounds = B.floor_and_ceiling()
@@ -431,6 +431,6 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
             B.ring(ring)
         bounds = B.floor_and_ceiling()
         B.decorate_walls(n_posters, n_doors)
-        B.boxes_along_walls(0.12, path_pts, clearance, n_box_designs)
+        B.boxes_along_walls(0.2, path_pts, clearance, n_box_designs)
         lamps = _polyline_samples(C, 2.4, closed)
     return Scene(layout, B.surfaces, headings, path, lamps, h, bounds)
