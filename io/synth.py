@@ -296,7 +296,7 @@ class SynthRenderer:
 
     # -------------------------------------------------------------- per-surface tables
     def _prepare_surfaces(self) -> None:
-        """Texture maps ``(tx, ty) = (su * u + ou, sv * v + ov)`` (level-0 texels) and colours."""
+        """Texture maps ``(tx, ty) = (su * u + ou, sv * v + ov)`` (level-0 texels) and flat colours."""
         ts = self.textures
         S = len(self.surfaces)
         self._su, self._sv = np.zeros(S), np.zeros(S)
@@ -316,13 +316,13 @@ class SynthRenderer:
                 self._su[i], self._sv[i] = 1.0 / TEXEL, -1.0 / TEXEL
                 h = ts.textures[_MAT_TEX[s.material]].shape[0] if ts else 0
                 self._ou[i] = s.offset[0] / TEXEL
-                self._ov[i] = h - s.offset[1] / TEXEL  # v = 0 (floor level) is the bottom row
+                self._ov[i] = h - s.offset[1] / TEXEL  # v = 0 (floor level) is the bottom edge
             elif ts is not None:
                 cells = {MAT_POSTER: ts.poster_cells, MAT_DOOR: ts.door_cells, MAT_BOX: ts.box_cells}[s.material]
                 x0, y0, w, h = cells[s.design % len(cells)]
-                self._su[i], self._ou[i] = w / s.size[0], x0 - 0.5
-                self._sv[i], self._ov[i] = -h / s.size[1], y0 + h - 0.5
-        # texel coordinates here are continuous with texel centres at integers
+                self._su[i], self._ou[i] = w / s.size[0], x0
+                self._sv[i], self._ov[i] = -h / s.size[1], y0 + h
+        # texel coordinates: texel corners at integers, so the cell [x0, x0 + w) is the decal
 
     def _prepare_lightmap(self) -> None:
         """Ceiling lamp pools: a smooth world-fixed (x, y) light map at 10 cm, in [0, 1]."""
@@ -341,30 +341,55 @@ class SynthRenderer:
     def render(self, pose_world_base, index: int = 0, stamp: float = 0.0) -> SynthFrame:
         """Render the view from base pose ``(x, y, theta)`` (3,) in the world.
 
-        Stage times accumulate in :attr:`timings` (seconds).
+        ``index`` selects the frame's noise (with the seed); ``stamp`` is copied into the
+        record. Stage times accumulate in :attr:`timings` (seconds).
         """
+        return self._shade(self._cast(pose_world_base), index, stamp)
+
+    def render_stream(self, poses, indices, stamps) -> Iterator[SynthFrame]:
+        """Render many frames, ray casting frame k + 1 on a worker thread while frame k is shaded.
+
+        open3d releases the GIL while it casts, so on two cores this hides most of the
+        ray-casting time. ``poses`` (M, 3), ``indices`` (M,), ``stamps`` (M,).
+        """
+        from concurrent.futures import ThreadPoolExecutor
+
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if not len(poses):
+            return
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            nxt = pool.submit(self._cast, poses[0])
+            for k in range(len(poses)):
+                cast = nxt.result()
+                if k + 1 < len(poses):
+                    nxt = pool.submit(self._cast, poses[k + 1])
+                yield self._shade(cast, indices[k], stamps[k])
+
+    def _cast(self, pose_world_base) -> tuple:
+        """Ray cast one view: ``(pose, T_world_cam, z (N,) float32, primitive ids (N,) uint32, seconds)``."""
         import open3d as o3d
 
-        cfg, tm, f32 = self.cfg, self.timings, np.float32
-        H, W = cfg.height, cfg.width
-        N = H * W
         t0 = self._clock()
         pose = np.asarray(pose_world_base, dtype=np.float64).reshape(3)
         T_wc = se2_to_matrix(pose) @ self.mount.T_base_cam
         R, c = T_wc[:3, :3], T_wc[:3, 3]
-        rng = np.random.default_rng([int(cfg.seed), int(index), 3])
-        xn, yn = self._xn, self._yn
-
         # Ray cast in the camera frame: the rays (0, (xn, yn, 1)) never change, so t_hit is
         # the optical-axis depth z; moving the few hundred vertices and rebuilding the BVH
         # is cheaper than rotating half a million ray directions.
-        V_cam = ((self._vertices - c) @ R).astype(f32)
+        V_cam = ((self._vertices - c) @ R).astype(np.float32)
         rc = o3d.t.geometry.RaycastingScene()
         rc.add_triangles(o3d.core.Tensor.from_numpy(V_cam), self._triangles)
-        t1 = self._clock()
         hits = rc.cast_rays(self._rays)
-        z = hits["t_hit"].numpy()
-        prim = hits["primitive_ids"].numpy()
+        return pose, T_wc, hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), self._clock() - t0
+
+    def _shade(self, cast: tuple, index: int, stamp: float) -> SynthFrame:
+        cfg, tm, f32 = self.cfg, self.timings, np.float32
+        H, W = cfg.height, cfg.width
+        N = H * W
+        pose, T_wc, z, prim, t_cast = cast
+        R, c = T_wc[:3, :3], T_wc[:3, 3]
+        rng = np.random.default_rng([int(cfg.seed), int(index), 3])
+        xn, yn = self._xn, self._yn
         t2 = self._clock()
 
         S = len(self.surfaces)
@@ -470,9 +495,8 @@ class SynthRenderer:
         rgbd = RGBDFrame(index=int(index), stamp=float(stamp), color=color, depth=depth,
                          depth_stamp=float(stamp), meta={"source": "synth", "layout": cfg.layout})
         t8 = self._clock()
-        for name, dt in (("rays", t1 - t0), ("cast", t2 - t1), ("sort", t3 - t2), ("surfaces", t4 - t3),
-                         ("texture", t5 - t4), ("compose", t6 - t5), ("depth", t7 - t6), ("truth", t8 - t7),
-                         ("total", t8 - t0)):
+        for name, dt in (("cast", t_cast), ("sort", t3 - t2), ("surfaces", t4 - t3), ("texture", t5 - t4),
+                         ("compose", t6 - t5), ("depth", t7 - t6), ("truth", t8 - t7), ("shade", t8 - t2)):
             tm[name] = tm.get(name, 0.0) + dt
         tm["frames"] = tm.get("frames", 0) + 1
         return SynthFrame(rgbd, T_wc, pose.copy(), truth)
@@ -593,11 +617,12 @@ def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int,
 
 
 def _sample_trilinear(texture, tx: np.ndarray, ty: np.ndarray, lod: np.ndarray) -> np.ndarray:
-    """Trilinear (mip-mapped) samples (n, 3) uint8 of a texture at level-0 texel coords.
+    """Trilinear (mip-mapped) samples (n, 3) uint8 of a texture.
 
-    ``lod``: log2 of the pixel footprint in level-0 texels. Each pixel is sampled at
-    levels ``floor(lod)`` and ``floor(lod) + 1`` of the packed pyramid (two remap calls
-    in all) and blended.
+    ``tx``, ``ty``: level-0 coordinates with texel *corners* at integers (texel centres
+    at +0.5), so level ``l`` coordinates are simply ``tx * 2**-l``. ``lod``: log2 of the
+    pixel footprint in level-0 texels. Each pixel is sampled at levels ``floor(lod)``
+    and ``floor(lod) + 1`` of the packed pyramid (two remap calls in all) and blended.
     """
     import cv2
     f32 = np.float32
@@ -606,30 +631,18 @@ def _sample_trilinear(texture, tx: np.ndarray, ty: np.ndarray, lod: np.ndarray) 
     l0 = lod.astype(np.uint8)
     frac = lod - l0
     sc = np.take(texture.scale, l0)
-    x = tx + f32(0.5)
-    x *= sc
-    x -= f32(0.5)
-    y = ty + f32(0.5)
-    y *= sc
-    y -= f32(0.5)
-    if texture.periodic:  # wrap into the level; the next level then needs only its border
-        w, h = np.take(texture.w, l0), np.take(texture.h, l0)
-        x -= np.floor(x / w) * w
-        y -= np.floor(y / h) * h
-    # level l0 + 1 coordinates from level l0 ones
-    x1 = x + f32(0.5)
-    x1 *= f32(0.5)
-    x1 -= f32(0.5)
-    y1 = y + f32(0.5)
-    y1 *= f32(0.5)
-    y1 -= f32(0.5)
-    l1 = l0 + np.uint8(1)
-    x += np.take(texture.ox, l0)
-    y += np.take(texture.oy, l0)
-    x1 += np.take(texture.ox, l1)
-    y1 += np.take(texture.oy, l1)
-    a = _remap_points(texture.packed, x, y, _BORDER_REPLICATE, keep_rows=True)
-    b = _remap_points(texture.packed, x1, y1, _BORDER_REPLICATE, keep_rows=True)
+    maps = []
+    for t, size, off in ((tx, texture.w[0], texture.ox), (ty, texture.h[0], texture.oy)):
+        t = t.copy()
+        if texture.periodic:  # wrap at level 0; every level then lies in its own region
+            t -= np.floor(t * f32(1.0 / size)) * f32(size)
+        t *= sc
+        t0 = t + np.take(off - f32(0.5), l0)  # pixel-centre convention of cv2.remap
+        t *= f32(0.5)
+        t += np.take(np.append(off[1:], off[-1]) - f32(0.5), l0)
+        maps.append((t0, t))
+    a = _remap_points(texture.packed, maps[0][0], maps[1][0], _BORDER_REPLICATE, keep_rows=True)
+    b = _remap_points(texture.packed, maps[0][1], maps[1][1], _BORDER_REPLICATE, keep_rows=True)
     wb = np.zeros(a.shape[:2], f32)
     wb.reshape(-1)[:len(frac)] = frac
     out = cv2.blendLinear(a, b, f32(1.0) - wb, wb)
@@ -640,13 +653,13 @@ def _sample_trilinear(texture, tx: np.ndarray, ty: np.ndarray, lod: np.ndarray) 
 
 def render_sequence(cfg: SynthConfig, frames: Iterable[int] | None = None) -> Iterator[SynthFrame]:
     """Render the sequence one frame at a time (all frames, or the given frame indices)."""
+    idx = np.arange(cfg.n_frames) if frames is None else np.array([int(i) for i in frames], dtype=np.int64)
+    bad = idx[(idx < 0) | (idx >= cfg.n_frames)]
+    if len(bad):
+        raise IndexError(f"frame {bad[0]} is outside the sequence of {cfg.n_frames} frames")
     renderer = SynthRenderer(cfg)
     stamps, poses = _trajectory(cfg, renderer.scene)
-    for i in (range(cfg.n_frames) if frames is None else frames):
-        i = int(i)
-        if not 0 <= i < cfg.n_frames:
-            raise IndexError(f"frame {i} is outside the sequence of {cfg.n_frames} frames")
-        yield renderer.render(poses[i], i, stamps[i])
+    yield from renderer.render_stream(poses[idx], idx, stamps[idx])
 
 
 def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfig) -> None:
@@ -693,8 +706,7 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     # encoders and most numpy work release the GIL)
     with writer, ThreadPoolExecutor(max_workers=1) as pool:
         pending = None
-        for i in range(cfg.n_frames):
-            f = renderer.render(poses[i], i, stamps[i])
+        for i, f in enumerate(renderer.render_stream(poses, np.arange(cfg.n_frames), stamps)):
             T_wc[i] = f.T_world_cam
             if pending is not None:
                 pending.result()

@@ -191,9 +191,9 @@ def _wall(rng, p) -> np.ndarray:
     img = base + n[..., None]
     scuffs = np.zeros((S, S), np.uint8)
     for _ in range(p["scuffs"]):  # scuffs mostly below 1 m, where trolleys and shoes hit
-        cx, cy = int(rng.integers(0, S)), int(S - rng.uniform(25, 200))
-        axes = (int(rng.uniform(4, 30)), int(rng.uniform(1, 5)))
-        angle, shade = float(rng.uniform(-25, 25)), int(rng.uniform(25, 70) * min(c, 1.2))
+        cx, cy = int(rng.integers(0, S)), int(S - 20 - rng.exponential(40.0))
+        axes = (int(rng.uniform(3, 16)), int(rng.uniform(1, 3)))
+        angle, shade = float(rng.uniform(-20, 20)), int(rng.uniform(15, 45) * min(c, 1.2))
         for dx in (-S, 0, S):  # drawn wrapped, so the texture stays periodic
             cv2.ellipse(scuffs, (cx + dx, cy), axes, angle, 0, 360, shade, -1, cv2.LINE_AA)
     img -= scuffs.astype(np.float32)[..., None]
