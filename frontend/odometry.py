@@ -234,6 +234,7 @@ class PlanarOdometry:
         prev_sigma = {f.track_id: f.sigma for f in prev.frames}
         n_depth = max(int(depth_ok.sum()), 1)
         best = None
+        mf_yaw = None  # (yaw, sigma) of the dominant usable local frame, kept for bridging
         for f in frames:
             if f.prev_heading is None or f.track_id not in prev_sigma or f.score < c.dpp_min_score:
                 continue
@@ -241,6 +242,8 @@ class PlanarOdometry:
             if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
                 continue
             yaw = yaw_from_manhattan_headings(f.prev_heading, f.heading, yaw_prior)
+            if mf_yaw is None:
+                mf_yaw = (yaw, yaw_sigma)
             motion, est = estimate_planar_motion_dpp(P1, P2, yaw, self._dpp_opt, yaw_sigma=yaw_sigma)
             info.setdefault("dpp", []).append({"status": est.status, "inliers": est.num_inliers,
                                                "track_id": f.track_id, "yaw_sigma": yaw_sigma})
@@ -267,14 +270,22 @@ class PlanarOdometry:
                 if step is not None:
                     return step
 
-        # 3. Bridge, flagged.
+        # 3. Bridge, flagged: constant velocity (or zero) translation with a large
+        # covariance; the yaw from a shared Manhattan frame when there is one (it does not
+        # need features), else from the same prior as the translation.
         if c.bridge == "constant_velocity" and self._last_motion is not None:
             yaw, t = self._last_motion
+            how = "constant_velocity"
         else:
             yaw, t = 0.0, np.zeros(3)
+            how = "zero"
+        sigma_theta = math.radians(c.bridge_sigma_theta_deg)
+        if mf_yaw is not None:
+            yaw, sigma_theta = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
+            how += "+manhattan_yaw"
         pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
-        cov = np.diag([c.bridge_sigma_xy ** 2, c.bridge_sigma_xy ** 2, math.radians(c.bridge_sigma_theta_deg) ** 2])
-        info["bridge"] = c.bridge if self._last_motion is not None else "zero"
+        cov = np.diag([c.bridge_sigma_xy ** 2, c.bridge_sigma_xy ** 2, sigma_theta ** 2])
+        info["bridge"] = how
         return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t)
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):

@@ -30,7 +30,7 @@ from planar_vo.io.types import CameraIntrinsics
 FLOOR, CEILING, HORIZONTAL, WALL = "floor", "ceiling", "horizontal", "wall"
 
 
-@dataclass
+@dataclass(eq=False)
 class Plane:
     """One detected plane in the levelled camera frame ``lev`` (y down).
 

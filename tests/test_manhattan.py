@@ -1,0 +1,127 @@
+"""Local Manhattan frames: grouping, scoring, tracking through the 90-degree ambiguity."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planar_vo import geometry as g
+from planar_vo.frontend.config import ManhattanConfig
+from planar_vo.frontend.manhattan import ManhattanTracker, group_walls
+from planar_vo.frontend.planes import Plane
+
+D = math.radians
+
+
+def wall(heading, support, sigma_deg=0.05, offset=1.5):
+    """A vertical Plane whose normal has 2-D heading ``heading`` (rad) in lev."""
+    n = np.array([-math.sin(heading), 0.0, math.cos(heading)])
+    q = n / offset
+    # a covariance of q giving the requested yaw sigma (isotropic in the x-z plane)
+    s2 = (D(sigma_deg) * np.linalg.norm(q)) ** 2
+    return Plane("wall", n, offset, support, int(support * 1e4), 0.001, np.diag([s2, 0.0, s2]), rms_rel=0.0)
+
+
+def test_group_parallel_and_perpendicular_walls():
+    walls = [wall(D(10.0), 0.30), wall(D(100.2), 0.20), wall(D(-80.1), 0.05),  # one frame
+             wall(D(40.0), 0.10), wall(D(-50.3), 0.06),                        # a second one
+             wall(D(25.0), 0.02)]                                              # clutter
+    frames = group_walls(walls, ManhattanConfig(group_tol_deg=2.5))
+    assert len(frames) == 3
+    f0, f1, f2 = frames
+    assert sorted(f0.walls) == [0, 1, 2] and f0.score == pytest.approx(0.55)
+    # area-weighted mean of 10.0, 10.2, 9.9 (mod 90)
+    expect = (0.30 * 10.0 + 0.20 * 10.2 + 0.05 * 9.9) / 0.55
+    assert math.degrees(f0.heading) == pytest.approx(expect, abs=1e-6)
+    assert sorted(f1.walls) == [3, 4] and f1.score == pytest.approx(0.16)
+    assert math.degrees(f1.heading) == pytest.approx(g.wrap_quarter(D(40.0 * 0.1 / 0.16 + 39.7 * 0.06 / 0.16)) * 180 / math.pi, abs=1e-6)
+    assert f2.walls == [5]
+    # wrapped to [-45, 45) degrees; sigma reflects the walls' scatter and is floored
+    for f in frames:
+        assert -math.pi / 4 <= f.heading < math.pi / 4
+        assert f.sigma >= D(ManhattanConfig().min_sigma_deg) - 1e-12
+    assert f0.sigma > D(0.05)  # 10.0 / 10.2 / 9.9 disagree by more than their fit sigma
+
+
+def test_group_across_the_wrap():
+    frames = group_walls([wall(D(44.5), 0.2), wall(D(-44.5), 0.1), wall(D(135.8), 0.1)])
+    assert len(frames) == 1
+    # the mean lands across the +-45 deg seam: 44.5, 45.5, 45.8 mod 90
+    m = math.degrees(float(g.wrap_quarter(frames[0].heading - D(45.0))))
+    assert m == pytest.approx((0.2 * -0.5 + 0.1 * 0.5 + 0.1 * 0.8) / 0.4, abs=1e-6)
+
+
+def test_tracker_follows_a_turn_through_the_ambiguity():
+    """The robot turns left 3 deg per frame for 40 frames: the observed heading of a fixed
+    Manhattan frame decreases by 3 deg per frame and wraps from -45 to +45 deg; the track
+    keeps its id, and a second local frame keeps its own."""
+    trk = ManhattanTracker(ManhattanConfig())
+    yaw_step = D(3.0)
+    ids_a, ids_b = set(), set()
+    for i in range(40):
+        ha = float(g.wrap_quarter(D(20.0) - i * yaw_step))
+        hb = float(g.wrap_quarter(D(-10.0) - i * yaw_step))
+        frames = group_walls([wall(ha + D(90.0), 0.3), wall(hb, 0.1)])
+        assert len(frames) == 2
+        trk.associate(frames, yaw_prior=yaw_step)
+        a = next(f for f in frames if abs(float(g.wrap_quarter(f.heading - ha))) < 1e-6)
+        b = next(f for f in frames if f is not a)
+        ids_a.add(a.track_id)
+        ids_b.add(b.track_id)
+        if i > 0:
+            assert a.prev_heading is not None
+            yaw = a.prev_heading - a.heading
+            assert math.degrees(float(g.wrap_quarter(yaw - yaw_step))) == pytest.approx(0.0, abs=1e-6)
+        trk.commit(frames, yaw_step)
+    assert len(ids_a) == 1 and len(ids_b) == 1 and ids_a != ids_b
+
+
+def test_tracker_carries_unseen_frames_and_prunes():
+    cfg = ManhattanConfig(max_missed=3)
+    trk = ManhattanTracker(cfg)
+    f = group_walls([wall(D(5.0), 0.3)])
+    trk.associate(f, 0.0)
+    trk.commit(f, 0.0)
+    tid = f[0].track_id
+    # two frames without walls while turning 2 deg per frame
+    for _ in range(2):
+        trk.associate([], D(2.0))
+        trk.commit([], D(2.0))
+    f = group_walls([wall(D(1.0), 0.3)])
+    trk.associate(f, D(2.0))
+    assert f[0].track_id == tid
+    assert f[0].prev_heading is None  # not seen in the previous frame: no direction-plus-point
+    trk.commit(f, D(2.0))
+    for _ in range(4):
+        trk.associate([], 0.0)
+        trk.commit([], 0.0)
+    assert trk.tracks == []
+
+
+# --------------------------------------------------------------------- synthetic corridor
+@pytest.fixture(scope="module")
+def synth_frames():
+    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+
+    cfg = SynthConfig(layout="lturn", n_frames=100, seed=5)
+    return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg, range(2, 100, 10)))
+
+
+def test_dominant_manhattan_yaw_on_synthetic_corridor(synth_frames):
+    from planar_vo.frontend.planes import PlaneDetector
+
+    K, mount, frames = synth_frames
+    pitch, roll, myaw = g.mount_angles(mount.T_base_cam[:3, :3])
+    det = PlaneDetector(K, R_lev_cam=g.levelling_rotation(pitch, roll))
+    errs = []
+    for f in frames:
+        truth = f.truth["manhattan_yaws_base"]
+        mf = group_walls(det.detect(f.rgbd.depth).walls)
+        if not truth:
+            continue
+        assert mf, f"frame {f.rgbd.index}: walls in view but no Manhattan frame"
+        errs.append(abs(math.degrees(float(g.wrap_quarter(mf[0].heading + myaw - truth[0])))))
+    assert len(errs) >= 8
+    assert np.median(errs) < 0.3, errs
+    assert max(errs) < 1.5, errs
