@@ -289,8 +289,11 @@ class SynthRenderer:
         self._vignette = (1.0 - cfg.vignetting * r2 / r2.max()).astype(np.float32).ravel()
         # standard normals for depth and image noise: each frame reads a window at a
         # random offset (drawing fresh Gaussians would cost ~20 ms a frame)
-        self._normals = np.random.default_rng([int(cfg.seed), 77]).standard_normal(
-            4 * H * W + (1 << 20), dtype=np.float32)
+        noise_rng = np.random.default_rng([int(cfg.seed), 77])
+        self._normals = noise_rng.standard_normal(2 * H * W + (1 << 18), dtype=np.float32)
+        self._img_noise = noise_rng.standard_normal(4 * H * W + (1 << 18), dtype=np.float32)
+        self._img_noise *= np.float32(cfg.image_noise)
+        self._img_noise += np.float32(0.5)
         self.timings: dict[str, float] = {}
         self._clock = time.perf_counter  # stage timer (a benchmark may swap in process_time)
 
@@ -470,11 +473,9 @@ class SynthRenderer:
         light += f32(0.8)
         light *= self._vignette[idx]
         colour *= light[:, None]
-        buf = self._normals
-        if cfg.image_noise > 0:
-            off = int(rng.integers(0, len(buf) - 3 * n_hit))
-            colour += buf[off: off + 3 * n_hit].reshape(n_hit, 3) * f32(cfg.image_noise)
-        colour += f32(0.5)
+        buf = self._img_noise  # image noise + 0.5 (rounding), read at a random offset
+        off = int(rng.integers(0, len(buf) - 3 * n_hit))
+        colour += buf[off: off + 3 * n_hit].reshape(n_hit, 3)
         np.clip(colour, 0.0, 255.0, out=colour)
         color = np.zeros((H, W, 3), np.uint8)
         color.reshape(-1).view("V3")[idx] = colour.astype(np.uint8).view("V3").ravel()
@@ -566,26 +567,26 @@ def _edge_holes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     neighbour-to-neighbour change of a slanted floor) removes the far-side pixel, and
     with probability 1/2 the next one outward as well (one or two pixels, as Kinect v2).
     """
-    zz = np.where(z > 0, z, np.float32(1e3))
+    f32 = np.float32
+    H, W = z.shape
+    zz = np.where(z > 0, z, f32(1e3))
     mask = np.zeros(z.shape, bool)
     for axis in (0, 1):
-        a = zz[:-1, :] if axis == 0 else zz[:, :-1]
-        b = zz[1:, :] if axis == 0 else zz[:, 1:]
+        a, b = (zz[:-1], zz[1:]) if axis == 0 else (zz[:, :-1], zz[:, 1:])
+        thr = np.minimum(a, b)
+        thr *= thr
+        thr *= f32(0.03)
+        thr += f32(0.02)
         dz = b - a
-        thr = np.float32(0.02) + np.float32(0.03) * np.minimum(a, b) ** 2
-        for farther_is_b in (True, False):
-            jump = dz > thr if farther_is_b else dz < -thr
-            r, c = np.nonzero(jump)
-            if axis == 0:
-                r = r + 1 if farther_is_b else r
-            else:
-                c = c + 1 if farther_is_b else c
-            mask[r, c] = True
-            two = rng.random(len(r)) < 0.5  # a second pixel further out
-            step = 1 if farther_is_b else -1
-            r2, c2 = (r + step, c) if axis == 0 else (r, c + step)
-            ok = two & (r2 >= 0) & (r2 < z.shape[0]) & (c2 >= 0) & (c2 < z.shape[1])
-            mask[r2[ok], c2[ok]] = True
+        r, c = np.nonzero(np.abs(dz) > thr)
+        sgn = np.where(dz[r, c] > 0, 1, -1)  # +1: b is the far side, -1: a is
+        far = np.where(sgn > 0, 1, 0)
+        for k, keep in ((far, None), (far + sgn, rng.random(len(r)) < 0.5)):  # 1 or 2 pixels
+            rr, cc = (r + k, c) if axis == 0 else (r, c + k)
+            ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+            if keep is not None:
+                ok &= keep
+            mask[rr[ok], cc[ok]] = True
     return mask
 
 
