@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from planar_vo.frontend.config import PlaneConfig
+from planar_vo.frontend.features import UNDISTORT_CRITERIA
 from planar_vo.io.types import CameraIntrinsics
 
 FLOOR, CEILING, HORIZONTAL, WALL = "floor", "ceiling", "horizontal", "wall"
@@ -108,7 +109,8 @@ def normalised_grid(intrinsics: CameraIntrinsics, stride: int) -> tuple[np.ndarr
     px = np.stack([uu.ravel(), vv.ravel()], axis=1)
     if intrinsics.has_distortion:
         xy = cv2.undistortPoints(px.reshape(-1, 1, 2), intrinsics.K,
-                                 np.asarray(intrinsics.distortion, np.float64)).reshape(-1, 2)
+                                 np.asarray(intrinsics.distortion, np.float64),
+                                 R=np.eye(3), P=np.eye(3), criteria=UNDISTORT_CRITERIA).reshape(-1, 2)
     else:
         xy = np.stack([(px[:, 0] - intrinsics.cx) / intrinsics.fx,
                        (px[:, 1] - intrinsics.cy) / intrinsics.fy], axis=1)

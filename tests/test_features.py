@@ -1,0 +1,104 @@
+"""Corner association (KLT, ORB), undistortion and lifting to 3-D."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.frontend.config import FeatureConfig
+from planar_vo.frontend.features import FeatureTracker, lift, undistort
+from planar_vo.io.types import CameraIntrinsics
+
+K = CameraIntrinsics(640, 480, 500.0, 500.0, 319.5, 239.5)
+
+
+def _texture(rng, h=480, w=640):
+    img = rng.random((h // 4, w // 4)).astype(np.float32)
+    img = cv2.resize(img, (w, h), interpolation=cv2.INTER_CUBIC)
+    img = cv2.GaussianBlur(img, (0, 0), 1.2)
+    img = (img - img.min()) / (img.max() - img.min())
+    return (30 + 200 * img).astype(np.uint8)
+
+
+def _warp(img, H):
+    return cv2.warpPerspective(img, H, (img.shape[1], img.shape[0]), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REFLECT)
+
+
+@pytest.mark.parametrize("method,median_px,tol_px,frac", [("klt", 0.1, 0.3, 0.9), ("orb", 1.0, 2.5, 0.8)])
+def test_matches_follow_a_known_homography(method, median_px, tol_px, frac):
+    rng = np.random.default_rng(11)
+    img0 = _texture(rng)
+    H = np.array([[1.01, 0.01, 6.5], [-0.008, 1.0, -3.25], [1e-5, 0.0, 1.0]])
+    img1 = _warp(img0, H)
+    depth = np.full(img0.shape, 2.0, np.float32)
+    tr = FeatureTracker(K, FeatureConfig(method=method))
+    f0, m0 = tr.process(img0, depth)
+    assert len(m0) == 0 and len(f0) > 100
+    f1, m = tr.process(img1, depth)
+    assert len(m) > 0.5 * len(f0)
+    p0 = f0.px[m[:, 0]].astype(np.float64)
+    p1 = f1.px[m[:, 1]].astype(np.float64)
+    pred = cv2.perspectiveTransform(p0.reshape(-1, 1, 2), H).reshape(-1, 2)
+    err = np.linalg.norm(pred - p1, axis=1)
+    # away from the reflected border, matches are accurate
+    inside = (pred[:, 0] > 30) & (pred[:, 0] < 610) & (pred[:, 1] > 30) & (pred[:, 1] < 450)
+    # ORB keypoints live on a scale pyramid: pixel-level, KLT sub-pixel
+    assert np.median(err[inside]) < median_px
+    assert np.mean(err[inside] < tol_px) > frac
+
+
+def test_klt_reuses_tracks_and_tops_up():
+    rng = np.random.default_rng(12)
+    img = _texture(rng)
+    depth = np.full(img.shape, 2.0, np.float32)
+    cfg = FeatureConfig(method="klt", max_corners=200)
+    tr = FeatureTracker(K, cfg)
+    f0, _ = tr.process(img, depth)
+    assert tr.last_detected == len(f0) <= 200
+    # the same image again: every corner survives, no new detection needed
+    f1, m = tr.process(img.copy(), depth)
+    assert len(m) >= 0.95 * len(f0) and tr.last_detected == 0
+    assert np.allclose(f1.px[m[:, 1]], f0.px[m[:, 0]], atol=0.05)
+    # a blank image loses every track (no texture), and nothing new is found
+    f2, m2 = tr.process(np.full_like(img, 128), depth)
+    assert len(m2) == 0 and len(f2) == 0
+
+
+def test_undistort_matches_opencv_and_identity():
+    px = np.array([[10.0, 20.0], [319.5, 239.5], [600.0, 470.0]])
+    xy = undistort(px, K)
+    assert np.allclose(xy[1], [0.0, 0.0])
+    assert np.allclose(xy[0], [(10 - 319.5) / 500.0, (20 - 239.5) / 500.0])
+    Kd = CameraIntrinsics(640, 480, 517.3, 516.5, 318.6, 255.3, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633))
+    xyd = undistort(px, Kd)
+    # re-distorting gives the pixels back
+    back, _ = cv2.projectPoints(np.column_stack([xyd, np.ones(3)]), np.zeros(3), np.zeros(3), Kd.K,
+                                np.array(Kd.distortion))
+    assert np.allclose(back.reshape(-1, 2), px, atol=1e-3)
+
+
+def test_lift_uses_depth_and_rejects_edges_and_holes():
+    depth = np.full((480, 640), 2.0, np.float32)
+    depth[:, 320:] = 3.0          # a depth edge at column 320
+    depth[100:110, 100:110] = 0.0  # a hole
+    px = np.array([[200.0, 200.0], [319.6, 200.0], [104.0, 104.0], [500.0, 300.0], [-3.0, 5.0]])
+    xy = undistort(px, K)
+    P = lift(px, xy, depth, FeatureConfig())
+    assert np.allclose(P[0], [xy[0, 0] * 2.0, xy[0, 1] * 2.0, 2.0])
+    assert np.isnan(P[1]).all()          # straddles the edge
+    assert np.isnan(P[2]).all()          # in the hole
+    assert P[3, 2] == pytest.approx(3.0)
+    assert np.isnan(P[4]).all()          # outside the image
+    # a pixel whose own reading is missing takes its readable neighbours' mean
+    depth2 = np.full((480, 640), 2.5, np.float32)
+    depth2[200, 200] = 0.0
+    assert lift(px[:1], xy[:1], depth2, FeatureConfig())[0, 2] == pytest.approx(2.5)
+
+
+def test_bad_input():
+    tr = FeatureTracker(K)
+    with pytest.raises(ValueError, match=r"\(480, 640, 3\) uint8"):
+        tr.process(np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640), np.float32))
+    with pytest.raises(ValueError, match="method"):
+        FeatureTracker(K, FeatureConfig(method="sift"))
