@@ -22,7 +22,8 @@ ROWS = [
 
 def load_ground_truth(path: str | Path):
     """Ground truth from a TUM file or from an MCAP log that carries ``/ground_truth``."""
-    from planar_vo.io import open_log, read_tum_trajectory
+    from planar_vo.io import open_log
+    from planar_vo.io.trajectory import read_tum_trajectory
 
     p = Path(path)
     if not p.exists():
@@ -53,7 +54,7 @@ def find_ground_truth(run_dir: Path):
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     """Errors of ``raw.tum`` and ``smoothed.tum`` in ``run_dir`` against ``gt`` (a Trajectory)."""
-    from planar_vo.io import read_tum_trajectory
+    from planar_vo.io.trajectory import read_tum_trajectory
 
     run_dir = Path(run_dir)
     if not (run_dir / "smoothed.tum").exists():

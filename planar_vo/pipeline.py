@@ -157,7 +157,7 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
     timings["optimize"] += time.perf_counter() - t0
 
     if gt_path is not None:
-        from planar_vo.io import read_tum_trajectory
+        from planar_vo.io.trajectory import read_tum_trajectory
         gt = read_tum_trajectory(gt_path)
 
     T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
@@ -279,7 +279,7 @@ def _atomic_text(path: Path, text: str) -> None:
 
 
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt) -> dict:
-    from planar_vo.io import write_poses_mcap, write_tum_trajectory
+    from planar_vo.io.trajectory import write_poses_mcap, write_tum_trajectory
 
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
