@@ -30,7 +30,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -105,7 +105,7 @@ class SynthConfig:
     # colour
     image_noise: float = 2.0
     vignetting: float = 0.15
-    # ground truth
+    # ground truth: a Manhattan frame counts as visible from this image fraction of in-range wall
     min_wall_fraction: float = 0.002
 
     def __post_init__(self) -> None:
@@ -163,7 +163,6 @@ class SynthConfig:
     def at_resolution(self, width: int, height: int) -> "SynthConfig":
         """The same sequence seen by the same camera resampled to ``width`` x ``height``."""
         k = synth_intrinsics(self).scaled(width, height)
-        from dataclasses import replace
         return replace(self, width=width, height=height, fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)
 
 
@@ -722,8 +721,3 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
         print(file=sys.stderr)
     _write_tum(gt_path, stamps, T_wc, cfg)
     return {"log": out, "ground_truth": gt_path}
-
-
-def config_fields() -> list[str]:
-    """Names of all :class:`SynthConfig` fields (for config files and help)."""
-    return [f.name for f in fields(SynthConfig)]

@@ -201,7 +201,8 @@ class _Builder:
         diffs = [abs(float((ang - h + math.pi / 4) % (math.pi / 2) - math.pi / 4)) for h in self.headings]
         k = int(np.argmin(diffs))
         if diffs[k] > math.radians(1.0):
-            raise AssertionError(f"wall direction {math.degrees(ang):.1f} deg matches no Manhattan frame")
+            raise ValueError(f"wall direction {math.degrees(ang):.1f} deg matches no Manhattan frame of "
+                             f"layout {self.layout!r}")
         return k
 
     def ring(self, Q: np.ndarray) -> None:

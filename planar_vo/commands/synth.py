@@ -7,6 +7,8 @@ OUT.gt.tum (TUM: t tx ty tz qx qy qz qw, camera optical frame in the world).
 from __future__ import annotations
 
 import argparse
+import os
+import time
 
 LAYOUT_HELP = ("straight: one corridor; lturn: a 90 deg left turn; loop: a rectangular corridor ring "
                "driven once around, back to the start; two_frames: a corridor meeting another at 60 deg "
@@ -77,8 +79,12 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(msg) from None
     if not str(args.out).endswith(".mcap"):
         raise InputError(f"output {args.out!r}: the log name must end in .mcap")
+    t0 = time.perf_counter()
     paths = write_synth_log(cfg, args.out, profile=args.profile, color_encoding=args.color_encoding,
                             depth_encoding=args.depth_encoding, progress=not args.quiet)
-    print(f"log: {paths['log']}")
+    dt = time.perf_counter() - t0
+    size_mb = os.path.getsize(paths["log"]) / 1e6
+    print(f"log: {paths['log']}  ({cfg.n_frames} frames {cfg.width}x{cfg.height}, {size_mb:.1f} MB, "
+          f"{cfg.path_length:.1f} m, {cfg.n_frames / dt:.1f} frames/s)")
     print(f"ground truth: {paths['ground_truth']}")
     return 0
