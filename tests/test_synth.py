@@ -88,6 +88,20 @@ def test_trajectory_is_smooth_planar_motion_with_the_layout_turn(layout, turn):
     assert 11.0 < cfg.path_length < 12.5
 
 
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_robot_moves_along_its_heading(layout):
+    # the same 29.9 s drive sampled at 100 Hz: a central difference's chord then deviates
+    # from the tangent by at most ~omega * dt / 2 = 3 mrad (at curvature steps)
+    cfg = SynthConfig(layout=layout, rate_hz=100.0, n_frames=2991)
+    _, poses = synth_trajectory(cfg)
+    d = poses[2:, :2] - poses[:-2, :2]
+    moving = np.linalg.norm(d, axis=1) > 0.002
+    course = np.arctan2(d[moving, 1], d[moving, 0])
+    err = np.angle(np.exp(1j * (course - poses[1:-1][moving, 2])))
+    assert moving.mean() > 0.9
+    assert np.abs(err).max() < 4e-3
+
+
 def test_loop_returns_to_its_start():
     _, poses = synth_trajectory(SynthConfig(layout="loop"))
     np.testing.assert_allclose(poses[-1, :2], poses[0, :2], atol=1e-9)
