@@ -1,0 +1,25 @@
+"""Back-end: GTSAM planar pose graph with SE(2) step factors and Manhattan-frame rotation
+factors, solved in batch (Levenberg-Marquardt) or incrementally (iSAM2). Pure: no file I/O.
+
+Public names are imported lazily so that importing the package does not load gtsam.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "BackendConfig": "planar_vo.backend.config",
+    "PlanarPoseGraph": "planar_vo.backend.graph",
+    "IncrementalPlanarPoseGraph": "planar_vo.backend.graph",
+    "ManhattanAssociator": "planar_vo.backend.association",
+    "simulate_manhattan_sequence": "planar_vo.backend.simulate",
+    "trajectory_errors": "planar_vo.backend.simulate",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'planar_vo.backend' has no attribute {name!r}")

@@ -1,0 +1,109 @@
+"""Back-end configuration: typed, defaults in code, loaded with :func:`planar_vo.configtools.from_dict`.
+
+Angles in configuration are degrees (readable in YAML); the code converts once.
+Robust-kernel parameters are in whitened units (multiples of the factor's sigma).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+KernelName = Literal["huber", "cauchy", "none"]
+
+
+@dataclass
+class BackendConfig:
+    """Everything the pose graph, its data association and its solvers need.
+
+    Prior: the first pose is the origin of ``odom`` (a tight prior, not a hard constraint,
+    so the graph stays a plain least-squares problem).
+
+    Robust kernels (on both factor kinds): ``cauchy`` is the default because it holds up
+    better than ``huber`` when wrong Manhattan associations slip through the gate (see
+    ``planar-vo bench backend``): Huber's influence stays constant for large residuals,
+    Cauchy's fades, so a 10-degree wrong association does not bend the yaw.
+
+    Manhattan association: an observation joins the local Manhattan frame whose predicted
+    residual ``wrap(m_j - theta_k - yaw_obs - b * pi / 2)`` is smallest, provided it is
+    within ``gate_sigmas`` of its predicted standard deviation AND within
+    ``gate_max_deg``. Observations that fit no frame start (or extend) a candidate frame;
+    a candidate becomes a graph variable once ``new_frame_min_observations`` mutually
+    consistent observations arrived within ``new_frame_window`` frames (so one stray
+    wall does not create a frame).
+    """
+
+    # --- prior on the first pose (odom = base at the first frame)
+    prior_sigma_xy: float = 1e-6          # m
+    prior_sigma_theta_deg: float = 1e-6   # deg
+
+    # --- robust noise models
+    robust_kernel: KernelName = "cauchy"
+    step_robust_parameter: float = 3.0       # whitened units
+    manhattan_robust_parameter: float = 2.0  # whitened units
+
+    # --- steps (BetweenFactorPose2 per frame)
+    step_min_sigma_xy: float = 1e-3          # m; marginal sigmas raised to at least this
+    step_min_sigma_theta_deg: float = 0.02   # deg
+    #: "frontend": use a bridged step's information as given; "override": replace it by
+    #: the sigmas below (a bridged step is a guess, its front-end covariance is too).
+    bridged_policy: Literal["frontend", "override"] = "override"
+    bridged_sigma_xy: float = 0.5            # m
+    bridged_sigma_theta_deg: float = 30.0    # deg
+
+    # --- Manhattan-frame rotation factors
+    manhattan: bool = True
+    #: "native": BetweenFactorPose2 with zero information on translation (exact, C++ speed);
+    #: "custom": gtsam.CustomFactor on (Pose2, Rot2) with analytic Jacobians (Python callback).
+    manhattan_factor: Literal["native", "custom"] = "native"
+    #: Observations per variable instance of a frame. A frame seen by thousands of poses
+    #: would be one very high-degree variable, which makes every iSAM2 update O(N);
+    #: instead a frame is a chain of instances tied by equality factors (sigma below),
+    #: a new one every ``manhattan_instance_size`` links or at each revisit.
+    #: 0 = one variable per frame.
+    manhattan_instance_size: int = 25
+    manhattan_tie_sigma_deg: float = 1e-4
+    manhattan_min_sigma_deg: float = 0.3     # floor on ManhattanObservation.sigma
+    manhattan_min_score: float = 0.0         # observations with a lower score are ignored
+    gate_sigmas: float = 4.0
+    gate_max_deg: float = 10.0
+    #: "any": every unmatched observation may start a frame; "dominant": only the
+    #: frame's dominant (first) observation; "never": only the frames already known.
+    new_frame_policy: Literal["any", "dominant", "never"] = "any"
+    new_frame_min_observations: int = 3
+    new_frame_window: int = 15               # frames
+    new_frame_gate_deg: float = 3.0          # consistency of a candidate's observations
+
+    # --- batch Levenberg-Marquardt
+    lm_max_iterations: int = 100
+    lm_relative_error_tol: float = 1e-10
+    lm_absolute_error_tol: float = 1e-10
+
+    # --- iSAM2
+    #: Relinearisation thresholds on the linear delta. They must sit well below the factor
+    #: sigmas: a robust kernel's weights are frozen at the linearisation point, so a loose
+    #: threshold leaves stale weights and a solution off the batch optimum.
+    isam2_relinearize_xy: float = 1e-3           # m
+    isam2_relinearize_theta_deg: float = 0.005   # deg
+    isam2_relinearize_skip: int = 10
+    isam2_wildfire_threshold: float = 1e-3    # per-update back-substitution stops below this change
+    isam2_factorization: Literal["CHOLESKY", "QR"] = "CHOLESKY"
+
+    def __post_init__(self) -> None:
+        positive = ("prior_sigma_xy", "prior_sigma_theta_deg", "step_robust_parameter",
+                    "manhattan_robust_parameter", "bridged_sigma_xy", "bridged_sigma_theta_deg",
+                    "manhattan_min_sigma_deg", "manhattan_tie_sigma_deg", "gate_sigmas", "gate_max_deg", "new_frame_gate_deg",
+                    "isam2_relinearize_xy", "isam2_relinearize_theta_deg")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score",
+                     "manhattan_instance_size",
+                     "lm_relative_error_tol", "lm_absolute_error_tol"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        for name in ("new_frame_min_observations", "new_frame_window", "lm_max_iterations",
+                     "isam2_relinearize_skip"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.gate_max_deg >= 45.0:
+            raise ValueError(f"gate_max_deg must be < 45 (the 90-degree ambiguity), got {self.gate_max_deg}")

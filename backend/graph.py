@@ -1,0 +1,446 @@
+"""Planar pose graph: one ``gtsam.Pose2`` per frame, SE(2) step factors, Manhattan-frame
+rotation factors, extra relative factors; solved in batch (Levenberg-Marquardt) or
+incrementally (iSAM2).
+
+Poses are SE(2) ``T_odom_base`` ``(x, y, theta)``; ``odom`` coincides with ``base`` at the
+first frame. Both graph classes build their factors through one :class:`_GraphBuilder`,
+so data association and factor construction live in exactly one place and the two
+solvers see identical graphs.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+
+import gtsam
+import numpy as np
+
+from planar_vo.backend.association import ManhattanAssociator
+from planar_vo.backend.config import BackendConfig
+from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor, manhattan_tie,
+                                       manhattan_value, robust_noise, robust_weight, step_noise)
+from planar_vo.frontend.types import STATUS_BRIDGED, FrameResult
+from planar_vo.geometry import se2_compose, wrap_angle, wrap_quarter
+
+__all__ = ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"]
+
+
+def _check_pose(pose, what: str) -> np.ndarray:
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"{what} must be a finite (3,) SE(2) pose (x, y, theta), got shape {p.shape}")
+    return p
+
+
+def _check_information(information, what: str) -> np.ndarray:
+    a = np.asarray(information, dtype=np.float64)
+    if a.shape != (3, 3) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} must be a finite (3, 3) information matrix, got shape {a.shape}")
+    a = 0.5 * (a + a.T)
+    if np.linalg.eigvalsh(a)[0] <= 0.0:
+        raise ValueError(f"{what} must be positive definite, got eigenvalues {np.linalg.eigvalsh(a)}")
+    return a
+
+
+class _GraphBuilder:
+    """Turns front-end results into new factors and initial values (shared by both solvers)."""
+
+    def __init__(self, config: BackendConfig, associator: ManhattanAssociator | None = None):
+        self.cfg = config
+        self.assoc = associator if associator is not None else ManhattanAssociator(config)
+        self.n = 0
+        self.raw: list[np.ndarray] = []     # chained steps, (3,) each
+        self.guess: list[np.ndarray] = []   # initial values: steps chained with filtered yaw
+        self.counts: Counter = Counter()    # factors by kind
+        self.assoc_counts: Counter = Counter()
+        # (kind, factor) of every robust factor, to report down-weighting after a solve
+        self.robust: list[tuple[str, object]] = []
+        # Manhattan frame j -> its current variable instance (key M(i)), links on it, last pose
+        self.inst_of_frame: list[int] = []
+        self._inst_links: list[int] = []
+        self._inst_last: list[int] = []
+        self.n_inst = 0
+        self._inst_yaw: list[float] = []   # initial value of each instance
+        #: optional ``f(instance) -> yaw`` giving the solver's current estimate of an instance
+        self.instance_estimate = None
+        self._tie_sigma = math.radians(config.manhattan_tie_sigma_deg)
+        self._floor = np.array([config.step_min_sigma_xy, config.step_min_sigma_xy,
+                                math.radians(config.step_min_sigma_theta_deg)]) ** 2
+        self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
+                                                     math.radians(config.bridged_sigma_theta_deg)]) ** 2)
+
+    def step_information(self, information: np.ndarray, status: str) -> np.ndarray:
+        """Information actually used for a step: bridged override, then sigma floors."""
+        if status == STATUS_BRIDGED and self.cfg.bridged_policy == "override":
+            information = self._bridged_info
+        cov = np.linalg.inv(information)
+        # Raise each marginal sigma to the floor by adding a diagonal (keeps it PSD).
+        cov = cov + np.diag(np.maximum(self._floor - np.diag(cov), 0.0))
+        return np.linalg.inv(cov)
+
+    def relative_factor(self, i: int, j: int, pose: np.ndarray, information: np.ndarray, kind: str):
+        noise = robust_noise(step_noise(information), self.cfg.robust_kernel, self.cfg.step_robust_parameter)
+        f = gtsam.BetweenFactorPose2(X(i), X(j), gtsam.Pose2(*pose), noise)
+        self.counts[kind] += 1
+        if self.cfg.robust_kernel != "none":
+            self.robust.append((kind, f))
+        return f
+
+    def frame(self, result: FrameResult, previous: np.ndarray | None = None):
+        """Factors and values for one frame: ``(NonlinearFactorGraph, Values, index)``.
+
+        ``previous``: the solver's current estimate of the previous pose (3,), used to
+        initialise the new one; defaults to the builder's own guess.
+        """
+        if not isinstance(result, FrameResult):
+            raise TypeError(f"add_frame expects a FrameResult, got {type(result).__name__}")
+        cfg = self.cfg
+        k = self.n
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if k == 0:
+            # The first frame defines odom; a step into it (from before the run) is ignored.
+            sig = np.array([cfg.prior_sigma_xy, cfg.prior_sigma_xy, math.radians(cfg.prior_sigma_theta_deg)])
+            graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            self.counts["prior"] += 1
+            self.assoc.start(0.0, float(sig[2] ** 2))
+            pose0 = np.zeros(3)
+            self.raw.append(pose0)
+            guess = pose0.copy()
+        else:
+            if result.step is None:
+                raise ValueError(f"FrameResult {result.index} (graph frame {k}) has step=None; "
+                                 f"only the first frame of a run may lack a step")
+            p = _check_pose(result.step.pose, f"FrameResult {result.index} step.pose")
+            info = self.step_information(
+                _check_information(result.step.information, f"FrameResult {result.index} step.information"),
+                result.step.status)
+            kind = "bridged" if result.step.status == STATUS_BRIDGED else "step"
+            graph.add(self.relative_factor(k - 1, k, p, info, kind))
+            self.raw.append(se2_compose(self.raw[-1], p))
+            self.assoc.predict(float(p[2]), float(np.linalg.inv(info)[2, 2]))
+            prev = self.guess[-1] if previous is None else previous
+            guess = se2_compose(prev, p)
+        if cfg.manhattan and result.manhattan:
+            out = self.assoc.observe(k, result.manhattan)
+            guess[2] = float(wrap_angle(guess[2] + out.theta_correction))
+            for j, yaw in out.new_frames:
+                self.inst_of_frame.append(self._new_instance(yaw, graph, values))
+                self._inst_links.append(0)
+                self._inst_last.append(k)
+            for link in out.links:
+                inst = self._instance_for(link.frame, k, graph, values)
+                f = manhattan_factor(link.pose, inst, link.measured, link.sigma,
+                                     kind=cfg.manhattan_factor, kernel=cfg.robust_kernel,
+                                     parameter=cfg.manhattan_robust_parameter)
+                graph.add(f)
+                if cfg.robust_kernel != "none":
+                    self.robust.append(("manhattan", f))
+            self.counts["manhattan"] += len(out.links)
+            self.assoc_counts.update(associated=out.associated, rejected=out.rejected,
+                                     ignored=out.ignored, new_frames=len(out.new_frames))
+        values.insert(X(k), gtsam.Pose2(*guess))
+        self.guess.append(guess)
+        self.n += 1
+        return graph, values, k
+
+    def _new_instance(self, yaw: float, graph, values) -> int:
+        i = self.n_inst
+        self.n_inst += 1
+        self._inst_yaw.append(float(yaw))
+        values.insert(M(i), manhattan_value(yaw, self.cfg.manhattan_factor))
+        if self.cfg.manhattan_factor == "native":
+            graph.add(manhattan_anchor(i))
+            self.counts["manhattan_anchor"] += 1
+        return i
+
+    def _instance_for(self, j: int, pose: int, graph, values) -> int:
+        """Instance of frame ``j`` to link pose ``pose`` to; opens and ties a new one when
+        the current one is full or the frame is being revisited."""
+        size = self.cfg.manhattan_instance_size
+        cur = self.inst_of_frame[j]
+        if size and self._inst_links[j] and (self._inst_links[j] >= size or pose - self._inst_last[j] > size):
+            if self.instance_estimate is not None and not values.exists(M(cur)):
+                yaw = self.instance_estimate(cur)
+            elif values.exists(M(cur)):
+                yaw = self._yaw_of(values, cur)
+            else:
+                yaw = self._inst_yaw[cur]
+            new = self._new_instance(yaw, graph, values)
+            graph.add(manhattan_tie(cur, new, self._tie_sigma, self.cfg.manhattan_factor))
+            self.counts["manhattan_tie"] += 1
+            self.inst_of_frame[j] = cur = new
+            self._inst_links[j] = 0
+        self._inst_links[j] += 1
+        self._inst_last[j] = max(self._inst_last[j], pose)
+        return cur
+
+    def _yaw_of(self, values: gtsam.Values, inst: int) -> float:
+        if self.cfg.manhattan_factor == "native":
+            return values.atPose2(M(inst)).theta()
+        return values.atRot2(M(inst)).theta()
+
+    def check_relative(self, i: int, j: int, pose, information):
+        for name, v in (("i", i), ("j", j)):
+            if not (0 <= int(v) < self.n):
+                raise ValueError(f"add_relative: {name}={v} is not a frame of the graph (0..{self.n - 1})")
+        if i == j:
+            raise ValueError(f"add_relative: i and j must differ, got {i}")
+        return (_check_pose(pose, "add_relative pose"),
+                self.step_information(_check_information(information, "add_relative information"), ""))
+
+    def poses_from(self, values: gtsam.Values) -> np.ndarray:
+        """(N, 3) poses ``X(0..N-1)`` from ``values``."""
+        allp = gtsam.utilities.extractPose2(values)
+        # Values iterate in key order; M(.) sorts before X(.), so the poses are the tail.
+        out = np.asarray(allp[len(allp) - self.n:], dtype=np.float64)
+        out[:, 2] = wrap_angle(out[:, 2])
+        return out
+
+    def frames_from(self, values: gtsam.Values | None) -> list[tuple[int, float, int]]:
+        out = []
+        for j, n_obs in enumerate(self.assoc.n_obs):
+            if values is None:
+                yaw = float(self.assoc.frame_yaws()[j])
+            else:
+                yaw = self._yaw_of(values, self.inst_of_frame[j])
+            out.append((j, float(wrap_quarter(yaw)), int(n_obs)))
+        return out
+
+    def downweighted(self, values: gtsam.Values) -> dict[str, int]:
+        """Robust factors whose IRLS weight is below 0.5 at ``values``, by kind."""
+        cfg = self.cfg
+        out: Counter = Counter()
+        for kind, f in self.robust:
+            noise = f.noiseModel()
+            u = noise.noise().mahalanobisDistance(f.unwhitenedError(values))
+            par = cfg.manhattan_robust_parameter if kind == "manhattan" else cfg.step_robust_parameter
+            if robust_weight(cfg.robust_kernel, par, u) < 0.5:
+                out[kind] += 1
+        return dict(out)
+
+    def stats(self) -> dict:
+        a = self.assoc_counts
+        return {
+            "poses": self.n,
+            "factors": dict(self.counts),
+            "manhattan_frames": self.assoc.n_frames,
+            "manhattan_instances": self.n_inst,
+            "associations": int(a["associated"]),
+            "new_frames": int(a["new_frames"]),
+            "rejected": int(a["rejected"]),
+            "ignored": int(a["ignored"]),
+            "pending": self.assoc.n_pending,
+        }
+
+
+class PlanarPoseGraph:
+    """Batch planar pose graph (offline default).
+
+    >>> g = PlanarPoseGraph()
+    >>> for r in frame_results: g.add_frame(r)
+    >>> poses = g.optimize()          # (N, 3) T_odom_base
+
+    ``associator``: a :class:`ManhattanAssociator` (or subclass) to use instead of the
+    default one built from ``config``, e.g. one that consults the front-end's track ids.
+    """
+
+    def __init__(self, config: BackendConfig | None = None, *,
+                 associator: ManhattanAssociator | None = None):
+        self.config = config or BackendConfig()
+        self._b = _GraphBuilder(self.config, associator)
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._initial = gtsam.Values()
+        self._result: gtsam.Values | None = None
+        self._solve: dict = {}
+
+    def __len__(self) -> int:
+        return self._b.n
+
+    def add_frame(self, result: FrameResult) -> int:
+        """Add one front-end frame (its step from the previous one and its Manhattan
+        observations); returns the frame's index in the graph."""
+        graph, values, k = self._b.frame(result)
+        self._graph.push_back(graph)
+        self._initial.insert(values)
+        self._result = None
+        return k
+
+    def add_relative(self, i: int, j: int, pose, information) -> None:
+        """Extra factor ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information`` (e.g. a loop closure)."""
+        p, info = self._b.check_relative(i, j, pose, information)
+        self._graph.add(self._b.relative_factor(i, j, p, info, "relative"))
+        self._result = None
+
+    def optimize(self) -> np.ndarray:
+        """Batch Levenberg-Marquardt over the whole graph; (N, 3) float64 ``T_odom_base``."""
+        if self._b.n == 0:
+            return np.zeros((0, 3))
+        cfg = self.config
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(cfg.lm_max_iterations)
+        params.setRelativeErrorTol(cfg.lm_relative_error_tol)
+        params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
+        t0 = time.perf_counter()
+        opt = gtsam.LevenbergMarquardtOptimizer(self._graph, self._initial, params)
+        self._result = opt.optimize()
+        self._solve = {"iterations": int(opt.iterations()), "time_s": time.perf_counter() - t0,
+                       "error_initial": float(self._graph.error(self._initial)),
+                       "error_final": float(opt.error())}
+        return self._b.poses_from(self._result)
+
+    def _values(self) -> gtsam.Values:
+        if self._result is None:
+            self.optimize()
+        return self._result
+
+    def raw_poses(self) -> np.ndarray:
+        """(N, 3) float64: the front-end steps chained from the origin (no back-end)."""
+        return np.array(self._b.raw).reshape(-1, 3)
+
+    def initial_poses(self) -> np.ndarray:
+        """(N, 3) float64: the initial values (steps chained with the filtered Manhattan yaw)."""
+        return np.array(self._b.guess).reshape(-1, 3)
+
+    def marginal_covariances(self) -> np.ndarray:
+        """(N, 3, 3) float64 marginal covariance of each pose at the optimum, in its Pose2
+        tangent space (body frame, ``[x, y, theta]``); optimises first if needed."""
+        values = self._values()
+        marg = gtsam.Marginals(self._graph, values)
+        return np.stack([marg.marginalCovariance(X(k)) for k in range(self._b.n)])
+
+    def manhattan_frames(self) -> list[tuple[int, float, int]]:
+        """``(id, yaw_world, n_observations)`` per local Manhattan frame; ``yaw_world`` (rad)
+        is the frame's heading in odom modulo 90 deg, in [-pi/4, pi/4), at the optimum if
+        :meth:`optimize` ran, else from the association filter."""
+        return self._b.frames_from(self._result)
+
+    @property
+    def stats(self) -> dict:
+        """Graph sizes, association counts and, after a solve, iterations, time, errors and
+        robust down-weighting (factors with IRLS weight < 0.5, by kind)."""
+        s = self._b.stats()
+        s.update(self._solve)
+        if self._result is not None:
+            s["downweighted"] = self._b.downweighted(self._result)
+        return s
+
+    @property
+    def graph(self) -> gtsam.NonlinearFactorGraph:
+        return self._graph
+
+    @property
+    def initial(self) -> gtsam.Values:
+        return self._initial
+
+
+class IncrementalPlanarPoseGraph:
+    """Streaming planar pose graph on iSAM2: each :meth:`add_frame` hands iSAM2 only the
+    new factors and values. Same factors and association as :class:`PlanarPoseGraph`."""
+
+    def __init__(self, config: BackendConfig | None = None, *,
+                 associator: ManhattanAssociator | None = None):
+        self.config = config or BackendConfig()
+        cfg = self.config
+        params = gtsam.ISAM2Params()
+        thr = gtsam.ISAM2ThresholdMap()
+        th = math.radians(cfg.isam2_relinearize_theta_deg)
+        thr.insert(("x", np.array([cfg.isam2_relinearize_xy, cfg.isam2_relinearize_xy, th])))
+        # M(.): native instances are Pose2 with an unused (pinned) translation; Rot2 otherwise.
+        thr.insert(("m", np.array([1.0, 1.0, th]) if cfg.manhattan_factor == "native" else np.array([th])))
+        params.setRelinearizeThreshold(thr)
+        params.relinearizeSkip = cfg.isam2_relinearize_skip
+        params.setFactorization(cfg.isam2_factorization)
+        gn = gtsam.ISAM2GaussNewtonParams()
+        gn.setWildfireThreshold(cfg.isam2_wildfire_threshold)
+        params.setOptimizationParams(gn)
+        self._isam = gtsam.ISAM2(params)
+        self._b = _GraphBuilder(cfg, associator)
+        self._b.instance_estimate = self._instance_estimate
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._time = 0.0
+        self._updates = 0
+
+    def __len__(self) -> int:
+        return self._b.n
+
+    def _instance_estimate(self, inst: int) -> float:
+        if self.config.manhattan_factor == "native":
+            return self._isam.calculateEstimatePose2(M(inst)).theta()
+        return self._isam.calculateEstimateRot2(M(inst)).theta()
+
+    def add_frame(self, result: FrameResult) -> int:
+        """Add one frame and update iSAM2 with its new factors and values; returns its index."""
+        t0 = time.perf_counter()
+        k = self._b.n
+        prev = None
+        if k > 0:
+            p = self._isam.calculateEstimatePose2(X(k - 1))
+            prev = np.array([p.x(), p.y(), p.theta()])
+        graph, values, k = self._b.frame(result, prev)
+        if self._pending.size():
+            graph.push_back(self._pending)
+            self._pending = gtsam.NonlinearFactorGraph()
+        self._isam.update(graph, values)
+        self._time += time.perf_counter() - t0
+        self._updates += 1
+        return k
+
+    def add_relative(self, i: int, j: int, pose, information) -> None:
+        """Queue an extra relative factor; it reaches iSAM2 with the next update."""
+        p, info = self._b.check_relative(i, j, pose, information)
+        self._pending.add(self._b.relative_factor(i, j, p, info, "relative"))
+
+    def update(self, iterations: int = 1) -> None:
+        """Flush queued factors, then run ``iterations`` relinearisation passes that ignore
+        ``isam2_relinearize_skip`` (variables still move only if their delta exceeds the
+        thresholds); no new information is added."""
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            self._isam.update(self._pending, gtsam.Values(), force_relinearize=True)
+            self._pending = gtsam.NonlinearFactorGraph()
+        self._time += time.perf_counter() - t0
+        self._updates += iterations
+
+    def estimate(self, flush: bool = True) -> np.ndarray:
+        """(N, 3) float64 current iSAM2 estimate of ``T_odom_base`` per frame.
+
+        ``flush``: first run one :meth:`update` pass (queued factors, and the relinearisation
+        the skip interval may have deferred for the newest frames); then a full
+        back-substitution (not limited by the wildfire threshold).
+        """
+        if self._b.n == 0:
+            return np.zeros((0, 3))
+        if flush or self._pending.size():
+            self.update()
+        return self._b.poses_from(self._isam.calculateBestEstimate())
+
+    def latest(self) -> np.ndarray:
+        """(3,) float64 current estimate of the newest pose (cheap: no full back-substitution)."""
+        p = self._isam.calculateEstimatePose2(X(self._b.n - 1))
+        return np.array([p.x(), p.y(), p.theta()])
+
+    def raw_poses(self) -> np.ndarray:
+        """(N, 3) float64: the front-end steps chained from the origin."""
+        return np.array(self._b.raw).reshape(-1, 3)
+
+    def marginal_covariances(self) -> np.ndarray:
+        """(N, 3, 3) float64 iSAM2 marginal covariances (Pose2 tangent space, body frame)."""
+        if self._pending.size():
+            self.update()
+        return np.stack([self._isam.marginalCovariance(X(k)) for k in range(self._b.n)])
+
+    def manhattan_frames(self) -> list[tuple[int, float, int]]:
+        """``(id, yaw_world, n_observations)`` per local frame at the current estimate."""
+        return self._b.frames_from(self._isam.calculateEstimate() if self._b.n else None)
+
+    @property
+    def stats(self) -> dict:
+        s = self._b.stats()
+        s.update({"updates": self._updates, "time_s": self._time,
+                  "time_per_update_s": self._time / max(self._updates, 1)})
+        return s
+
+    def downweighted(self) -> dict[str, int]:
+        """Robust factors with IRLS weight < 0.5 at the current estimate, by kind."""
+        return self._b.downweighted(self._isam.calculateEstimate())
