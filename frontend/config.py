@@ -122,6 +122,7 @@ class OdometryConfig:
 
     min_inliers: int = 12            # fewer inliers: the estimator failed
     min_inlier_ratio: float = 0.3
+    min_scale_inliers: int = 8       # 2-point: matches with depth that agree on the metric scale
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
     dpp_min_score: float = 0.05      # local frames covering less image area are not used
@@ -135,6 +136,7 @@ class OdometryConfig:
     bridge: Literal["constant_velocity", "zero"] = "constant_velocity"
     bridge_sigma_xy: float = 1.0     # metres, std of a bridged step
     bridge_sigma_theta_deg: float = 30.0
+    bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
     min_sigma_xy: float = 0.002      # floors on a step's std (unmodelled errors)
     min_sigma_theta_deg: float = 0.05
 

@@ -1,0 +1,183 @@
+"""Frame-to-frame planar odometry on synthetic corridors with ground truth."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planar_vo import geometry as g
+from planar_vo.errors import InputError
+from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
+from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP
+from planar_vo.io.types import CameraIntrinsics, RGBDFrame
+
+
+def _render(**kw):
+    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+
+    res = kw.pop("resolution", None)
+    cfg = SynthConfig(**kw)
+    if res is not None:
+        cfg = cfg.at_resolution(*res)
+    return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg))
+
+
+@pytest.fixture(scope="module")
+def lturn():
+    return _render(layout="lturn", n_frames=100, seed=0)
+
+
+@pytest.fixture(scope="module")
+def hall():
+    # the hall's U-turn needs 6.7 m of path: 100 frames at 0.8 m/s
+    return _render(layout="hall", n_frames=100, seed=1, speed=0.8)
+
+
+def _run(K, frames, mount):
+    odo = PlanarOdometry(K, mount)
+    results = [odo.process(f.rgbd) for f in frames]
+    return odo, results
+
+
+def _chain(results):
+    poses = [np.zeros(3)]
+    for r in results[1:]:
+        poses.append(g.se2_compose(poses[-1], r.step.pose))
+    return np.array(poses)
+
+
+def _drift(est, truth):
+    """End-point drift (fraction of path length) and final yaw error (deg), both relative
+    to the first pose."""
+    rel = np.array([g.se2_between(truth[0], p) for p in truth])
+    length = np.linalg.norm(np.diff(rel[:, :2], axis=0), axis=1).sum()
+    return (np.linalg.norm(est[-1, :2] - rel[-1, :2]) / length,
+            math.degrees(float(g.wrap_angle(est[-1, 2] - rel[-1, 2]))))
+
+
+def _check_steps(results):
+    assert results[0].step is None
+    for r in results[1:]:
+        s = r.step
+        assert s.pose.shape == (3,) and np.isfinite(s.pose).all()
+        assert np.allclose(s.information, s.information.T)
+        assert np.linalg.eigvalsh(s.information).min() > 0
+        assert s.status in (STATUS_DPP, STATUS_2PT, STATUS_BRIDGED)
+        assert {"planes", "manhattan", "features", "estimate", "total"} <= set(r.timings)
+        assert {"features", "matches", "planes", "walls", "levelling", "floor_seen"} <= set(r.info)
+
+
+@pytest.mark.slow
+def test_lturn_with_known_mount(lturn):
+    K, mount, frames = lturn
+    odo, results = _run(K, frames, mount)
+    _check_steps(results)
+    statuses = [r.step.status for r in results[1:]]
+    assert statuses.count(STATUS_DPP) > 0.8 * len(statuses)  # walls everywhere: direction-plus-point
+    assert statuses.count(STATUS_BRIDGED) == 0
+    drift, yaw_err = _drift(_chain(results), np.array([f.pose_world_base for f in frames]))
+    assert drift < 0.02, drift
+    assert abs(yaw_err) < 1.0, yaw_err
+    assert odo.mount is mount
+    # Manhattan observations relative to base_link agree with the truth
+    errs = [abs(math.degrees(float(g.wrap_quarter(r.manhattan[0].yaw - f.truth["manhattan_yaws_base"][0]))))
+            for r, f in zip(results, frames) if r.manhattan and f.truth["manhattan_yaws_base"]]
+    assert len(errs) > 90 and np.median(errs) < 0.3
+    # per-step errors are consistent with the reported information (chi-square, 3 dof)
+    chi2 = []
+    for r, f0, f1 in zip(results[1:], frames[:-1], frames[1:]):
+        e = r.step.pose - g.se2_between(f0.pose_world_base, f1.pose_world_base)
+        e[2] = float(g.wrap_angle(e[2]))
+        chi2.append(e @ r.step.information @ e)
+    assert np.median(chi2) < 3 * 2.37  # 2.37 = median of chi-square(3); generous for model error
+
+
+@pytest.mark.slow
+def test_lturn_with_estimated_mount(lturn):
+    """No mount: pitch, roll and height come from the floor; base_link is put on the floor
+    under the camera, so compare the trajectories of that point."""
+    K, mount, frames = lturn
+    odo, results = _run(K, frames, None)
+    _check_steps(results)
+    lev = odo.levelling
+    p, r, _ = g.mount_angles(mount.T_base_cam[:3, :3])
+    assert lev.source == "floor" and lev.ready
+    assert abs(math.degrees(lev.pitch - p)) < 0.1 and abs(math.degrees(lev.roll - r)) < 0.1
+    assert lev.height == pytest.approx(mount.T_base_cam[2, 3], abs=0.005)
+    m_true = g.mount_se2(mount.T_base_cam)
+    m_est = g.mount_se2(odo.mount.T_base_cam)
+    truth = np.array([g.se2_compose(f.pose_world_base, m_true) for f in frames])
+    est = np.array([g.se2_compose(q, m_est) for q in _chain(results)])
+    drift, yaw_err = _drift(est - [0, 0, 0], truth)
+    drift, yaw_err = _drift(np.array([g.se2_between(est[0], q) for q in est]), truth)
+    assert drift < 0.02, drift
+    assert abs(yaw_err) < 1.0, yaw_err
+
+
+@pytest.mark.slow
+def test_hall_u_turn(hall):
+    K, mount, frames = hall
+    _, results = _run(K, frames, mount)
+    _check_steps(results)
+    statuses = [r.step.status for r in results[1:]]
+    assert statuses.count(STATUS_2PT) > 10  # walls are far or out of view for part of the turn
+    drift, yaw_err = _drift(_chain(results), np.array([f.pose_world_base for f in frames]))
+    assert drift < 0.02, drift
+    assert abs(yaw_err) < 1.0, yaw_err
+
+
+def test_untextured_hall_is_bridged_not_guessed():
+    """No texture, walls mostly out of range: the estimators rarely have enough to work
+    with, and every step they cannot estimate says so (STATUS_BRIDGED, large covariance)
+    instead of inventing motion; the few estimated steps are right."""
+    K, mount, frames = _render(layout="hall", n_frames=100, seed=2, speed=0.8, texture="none",
+                               resolution=(480, 270))
+    odo = PlanarOdometry(K, mount)
+    results = [odo.process(f.rgbd) for f in frames]
+    _check_steps(results)
+    bridged = [r for r in results[1:] if r.step.status == STATUS_BRIDGED]
+    assert len(bridged) >= 0.7 * (len(results) - 1)
+    for r in bridged:
+        cov = np.linalg.inv(r.step.information)
+        assert math.sqrt(cov[0, 0]) >= 0.5 and math.sqrt(cov[1, 1]) >= 0.5 and "bridge" in r.info
+        assert r.step.inliers == 0
+    for r, f0, f1 in zip(results[1:], frames[:-1], frames[1:]):
+        if r.step.status != STATUS_BRIDGED:
+            e = r.step.pose - g.se2_between(f0.pose_world_base, f1.pose_world_base)
+            assert np.linalg.norm(e[:2]) < 0.03 and abs(math.degrees(e[2])) < 0.5, (f1.rgbd.index, e)
+
+
+def test_covariance_propagation_matches_monte_carlo():
+    rng = np.random.default_rng(21)
+    m = np.array([0.12, -0.03, math.radians(4.0)])
+    yaw, t = math.radians(3.0), np.array([0.02, 0.0, 0.08])
+    cov = np.diag([math.radians(0.3) ** 2, 0.004 ** 2, 0.006 ** 2])
+    cov[1, 2] = cov[2, 1] = 0.3 * 0.004 * 0.006
+    pose, cov_b = lev_motion_to_base_step(yaw, t, cov, m)
+    samples = rng.multivariate_normal([yaw, t[0], t[2]], cov, 20000)
+    out = np.array([lev_motion_to_base_step(s[0], np.array([s[1], 0.0, s[2]]), None, m)[0] for s in samples])
+    assert np.allclose(out.mean(0), pose, atol=2e-4)
+    emp = np.cov(out.T)
+    # whitened by the propagated covariance, the sample covariance is the identity
+    Li = np.linalg.inv(np.linalg.cholesky(cov_b))
+    assert np.allclose(Li @ emp @ Li.T, np.eye(3), atol=0.04)
+    # and the mean step is the geometry module's conversion
+    assert np.allclose(pose, g.lev_step_to_base_step(g.levelled_motion_to_pose(yaw, t), m))
+
+
+def test_input_validation():
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    odo = PlanarOdometry(K)
+    ok_c, ok_d = np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64), np.float32)
+    with pytest.raises(InputError, match=r"frame 3: depth image \(48, 63\)"):
+        odo.process(RGBDFrame(3, 0.0, ok_c, np.zeros((48, 63), np.float32)))
+    with pytest.raises(InputError, match=r"frame 4: colour image \(48, 64, 3\) float32"):
+        odo.process(RGBDFrame(4, 0.0, ok_c.astype(np.float32), ok_d))
+    with pytest.raises(InputError, match="intrinsics"):
+        PlanarOdometry(CameraIntrinsics(0, 0, 0.0, 0.0, 0.0, 0.0))
+    # an empty frame is a valid first frame, the next one is bridged
+    r0 = odo.process(RGBDFrame(0, 0.0, ok_c, ok_d))
+    r1 = odo.process(RGBDFrame(1, 0.1, ok_c, ok_d))
+    assert r0.step is None and r1.step.status == STATUS_BRIDGED
+    assert r1.info["levelling"]["source"] == "initial" and not r1.info["floor_seen"]
