@@ -1,0 +1,149 @@
+"""`planar-vo run` / `evaluate` end to end on small synthetic logs, including bad input mid-run."""
+import json
+
+import numpy as np
+import pytest
+
+from planar_vo.cli import main
+from planar_vo.evaluation import evaluate_run
+from planar_vo.io.trajectory import read_poses_mcap, read_tum_trajectory
+
+
+@pytest.fixture(scope="module")
+def batch_run(lturn_log, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "batch"
+    code = main(["run", str(lturn_log), "--out", str(out), "--quiet"])
+    return code, out
+
+
+def test_run_writes_every_output(batch_run, lturn_log):
+    code, out = batch_run
+    assert code == 0
+    for name in ("raw.tum", "smoothed.tum", "poses.mcap", "report.json", "config.yaml", "trajectory.png"):
+        assert (out / name).stat().st_size > 0, name
+    raw, smooth = read_tum_trajectory(out / "raw.tum"), read_tum_trajectory(out / "smoothed.tum")
+    gt = read_tum_trajectory(lturn_log.with_suffix(".gt.tum"))
+    assert len(raw) == len(smooth) == 100
+    np.testing.assert_allclose(raw.stamps, gt.stamps, atol=1e-6)  # colour stamps
+    back = read_poses_mcap(out / "poses.mcap")
+    assert set(back) >= {"raw", "smoothed"}
+    np.testing.assert_allclose(back["smoothed"].poses, smooth.poses, atol=1e-6)
+    r = json.loads((out / "report.json").read_text())
+    f = r["frames"]
+    assert f["with_pose"] == 100 and f["failed"] == 0
+    assert f["estimated_dpp"] + f["estimated_2pt"] + f["bridged"] == 99
+    assert f["estimated_dpp"] > 50  # corridor walls are in view most of the time
+    assert r["planarity"]["verdict"] == "planar"
+    assert r["fps"] > 0 and r["timings_ms_per_frame"]["frontend"] > 0
+    # the mount comes from /tf_static
+    assert r["mount"]["pitch_deg"] == pytest.approx(10.0, abs=1e-6)
+
+
+def test_run_is_accurate_on_lturn(batch_run):
+    _, out = batch_run
+    ev = evaluate_run(out)
+    assert ev["raw"]["matched"] == 100
+    assert ev["raw"]["endpoint_drift_pct"] < 2.0
+    assert ev["smoothed"]["endpoint_drift_pct"] < 1.0
+    assert abs(ev["smoothed"]["final_yaw_error_deg"]) < 1.0
+    assert ev["smoothed"]["ate_rmse_m"] < 0.05
+
+
+def test_evaluate_command(batch_run, lturn_log, capsys):
+    _, out = batch_run
+    assert main(["evaluate", str(out), "--gt", str(lturn_log.with_suffix(".gt.tum"))]) == 0
+    text = capsys.readouterr().out
+    assert "end-point drift [% of path]" in text and "smoothed" in text
+    data = json.loads((out / "evaluation.json").read_text())
+    assert data["smoothed"]["matched"] == 100
+
+
+def test_online_agrees_with_batch(batch_run, lturn_log, tmp_path):
+    _, out = batch_run
+    assert main(["run", str(lturn_log), "--out", str(tmp_path), "--quiet", "--online", "--no-plot"]) == 0
+    a = read_tum_trajectory(out / "smoothed.tum").positions
+    b = read_tum_trajectory(tmp_path / "smoothed.tum").positions
+    assert np.abs(a - b).max() < 0.01
+    assert not (tmp_path / "trajectory.png").exists()
+
+
+def test_interrupt_keeps_results(lturn_log, tmp_path, monkeypatch, capsys):
+    from planar_vo.frontend import odometry
+
+    real = odometry.PlanarOdometry.process
+    calls = {"n": 0}
+
+    def process(self, frame):
+        calls["n"] += 1
+        if calls["n"] == 21:
+            raise KeyboardInterrupt
+        return real(self, frame)
+
+    monkeypatch.setattr(odometry.PlanarOdometry, "process", process)
+    code = main(["run", str(lturn_log), "--out", str(tmp_path), "--quiet", "--no-plot"])
+    assert code == 3
+    assert len(read_tum_trajectory(tmp_path / "smoothed.tum")) == 20
+    r = json.loads((tmp_path / "report.json").read_text())
+    assert r["partial"] and "interrupted" in r["stop_reason"]
+    assert "partial run" in capsys.readouterr().out
+
+
+def test_truncated_log_keeps_results(lturn_log, tmp_path, capsys):
+    data = lturn_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    code = main(["run", str(cut), "--out", str(tmp_path / "run"), "--quiet", "--no-plot"])
+    assert code == 3
+    n = len(read_tum_trajectory(tmp_path / "run" / "smoothed.tum"))
+    assert 30 <= n < 100
+    r = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert r["partial"] and "byte" in r["stop_reason"]
+
+
+def _copy_with_corrupt_colour(src, dst, corrupt_index):
+    """Rewrite an MCAP, cutting the colour message number ``corrupt_index`` in half."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        reader = make_reader(f)
+        w = Writer(g)
+        w.start()
+        schemas, channels, k = {}, {}, 0
+        for schema, channel, msg in reader.iter_messages(log_time_order=True):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            data = msg.data
+            if "image_color" in channel.topic:
+                if k == corrupt_index:
+                    data = data[: len(data) // 2]
+                k += 1
+            w.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
+        w.finish()
+
+
+def test_corrupt_frame_is_skipped_counted_and_named(lturn_log, tmp_path):
+    bad = tmp_path / "bad.mcap"
+    _copy_with_corrupt_colour(lturn_log, bad, 30)
+    code = main(["run", str(bad), "--out", str(tmp_path / "run"), "--quiet", "--no-plot", "--stop", "60"])
+    assert code == 0
+    r = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert r["frames"]["failed"] == 1 and len(r["frames"]["failed_frames"]) == 1
+    assert r["frames"]["with_pose"] == 59
+    assert len(read_tum_trajectory(tmp_path / "run" / "smoothed.tum")) == 59
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["run", "/nonexistent/x.mcap", "--out", "OUT"], "x.mcap"),
+    (["run", "LOG", "--out", "OUT", "--fx", "500"], "fx, fy, cx, cy"),
+    (["run", "LOG", "--out", "OUT", "--pitch-deg", "10"], "pitch_deg and roll_deg"),
+    (["evaluate", "/nonexistent/dir"], "not a run folder"),
+])
+def test_bad_arguments_are_one_line(argv, needle, lturn_log, tmp_path, capsys):
+    argv = [str(lturn_log) if a == "LOG" else str(tmp_path / "o") if a == "OUT" else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0] and "Traceback" not in err[0]
