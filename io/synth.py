@@ -385,6 +385,7 @@ class SynthRenderer:
         return pose, T_wc, hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), self._clock() - t0
 
     def _shade(self, cast: tuple, index: int, stamp: float) -> SynthFrame:
+        """Colour, depth and ground truth from one :meth:`_cast` result."""
         cfg, tm, f32 = self.cfg, self.timings, np.float32
         H, W = cfg.height, cfg.width
         N = H * W

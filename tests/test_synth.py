@@ -275,12 +275,13 @@ def test_ideal_depth_is_the_true_depth_in_range(straight_ideal):
 
 
 def test_texture_levels_control_trackable_features():
-    counts = {}
-    for tex in ("none", "rich"):
+    counts = []
+    for tex in ("none", "low", "medium", "rich"):
         f = next(render_sequence(small(layout="straight", texture=tex), [150]))
         g = cv2.cvtColor(f.rgbd.color, cv2.COLOR_BGR2GRAY)
-        counts[tex] = len(cv2.FastFeatureDetector_create(20).detect(g))
-    assert counts["rich"] > 5 * counts["none"]
+        counts.append(len(cv2.FastFeatureDetector_create(20).detect(g)))
+    assert counts == sorted(counts) and len(set(counts)) == 4
+    assert counts[-1] > 5 * counts[0]
 
 
 # ---------------------------------------------------------------------- determinism
