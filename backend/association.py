@@ -133,6 +133,9 @@ class ManhattanAssociator:
         """Frame index and ``measured = yaw + b*pi/2`` with the smallest gated residual."""
         best, best_u, best_meas = None, math.inf, 0.0
         theta, P = self._x[0], self._P
+        # After a bridged step the heading itself is uncertain: widen the degree cap with it
+        # (never past 40 deg, where the 90-degree branch becomes ambiguous).
+        cap = min(max(self._gate_max, 3.0 * math.sqrt(P[0, 0])), math.radians(40.0))
         for j in range(self.n_frames):
             if j in used:
                 continue
@@ -141,7 +144,7 @@ class ManhattanAssociator:
             r = math.remainder(d - b * HALF_PI, TWO_PI)
             s = P[j + 1, j + 1] + P[0, 0] - 2.0 * P[0, j + 1] + var
             u = abs(r) / math.sqrt(s)
-            if abs(r) <= self._gate_max and u <= self.cfg.gate_sigmas and u < best_u:
+            if abs(r) <= cap and u <= self.cfg.gate_sigmas and u < best_u:
                 best, best_u, best_meas = j, u, yaw + b * HALF_PI
         return best, best_meas
 

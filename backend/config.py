@@ -73,6 +73,11 @@ class BackendConfig:
     new_frame_window: int = 15               # frames
     new_frame_gate_deg: float = 3.0          # consistency of a candidate's observations
 
+    #: After the robust solve, Manhattan and extra relative factors whose whitened residual
+    #: exceeds this many sigmas are removed and the graph re-solved (batch only): even a
+    #: Cauchy kernel keeps a residual pull ~ k^2 / u per wrong factor. 0 disables.
+    prune_sigmas: float = 10.0
+
     # --- batch Levenberg-Marquardt
     lm_max_iterations: int = 100
     lm_relative_error_tol: float = 1e-10
@@ -96,7 +101,7 @@ class BackendConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score",
+        for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "manhattan_instance_size",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:

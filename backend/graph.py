@@ -43,6 +43,12 @@ def _check_information(information, what: str) -> np.ndarray:
     return a
 
 
+def _is_manhattan_link(f) -> bool:
+    """True for a pose-to-Manhattan-frame rotation factor (not anchors or ties)."""
+    keys = f.keys()
+    return len(keys) == 2 and gtsam.Symbol(keys[0]).chr() == ord("x") and gtsam.Symbol(keys[1]).chr() == ord("m")
+
+
 class _GraphBuilder:
     """Turns front-end results into new factors and initial values (shared by both solvers)."""
 
@@ -97,6 +103,7 @@ class _GraphBuilder:
             raise TypeError(f"add_frame expects a FrameResult, got {type(result).__name__}")
         cfg = self.cfg
         k = self.n
+        self.last_links = []
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if k == 0:
             # The first frame defines odom; a step into it (from before the run) is ignored.
@@ -128,6 +135,7 @@ class _GraphBuilder:
                 self.inst_of_frame.append(self._new_instance(yaw, graph, values))
                 self._inst_links.append(0)
                 self._inst_last.append(k)
+            self.last_links = list(out.links)
             for link in out.links:
                 inst = self._instance_for(link.frame, k, graph, values)
                 f = manhattan_factor(link.pose, inst, link.measured, link.sigma,
@@ -253,6 +261,9 @@ class PlanarPoseGraph:
         self._initial = gtsam.Values()
         self._result: gtsam.Values | None = None
         self._solve: dict = {}
+        self._prunable: list[int] = []    # indices of Manhattan links and extra relative factors
+        self._pruned: Counter = Counter()
+        self._link_of: dict = {}          # factor index -> ManhattanLink
 
     def __len__(self) -> int:
         return self._b.n
@@ -261,6 +272,12 @@ class PlanarPoseGraph:
         """Add one front-end frame (its step from the previous one and its Manhattan
         observations); returns the frame's index in the graph."""
         graph, values, k = self._b.frame(result)
+        base = self._graph.size()
+        links = iter(self._b.last_links)
+        for i in range(graph.size()):
+            if _is_manhattan_link(graph.at(i)):
+                self._prunable.append(base + i)
+                self._link_of[base + i] = next(links)
         self._graph.push_back(graph)
         self._initial.insert(values)
         self._result = None
@@ -269,6 +286,7 @@ class PlanarPoseGraph:
     def add_relative(self, i: int, j: int, pose, information) -> None:
         """Extra factor ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information`` (e.g. a loop closure)."""
         p, info = self._b.check_relative(i, j, pose, information)
+        self._prunable.append(self._graph.size())
         self._graph.add(self._b.relative_factor(i, j, p, info, "relative"))
         self._result = None
 
@@ -282,12 +300,60 @@ class PlanarPoseGraph:
         params.setRelativeErrorTol(cfg.lm_relative_error_tol)
         params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
         t0 = time.perf_counter()
+        error_initial = float(self._graph.error(self._initial))
         opt = gtsam.LevenbergMarquardtOptimizer(self._graph, self._initial, params)
         self._result = opt.optimize()
-        self._solve = {"iterations": int(opt.iterations()), "time_s": time.perf_counter() - t0,
-                       "error_initial": float(self._graph.error(self._initial)),
-                       "error_final": float(opt.error())}
+        iterations = int(opt.iterations())
+        if cfg.prune_sigmas > 0 and self._prune(self._result):
+            opt = gtsam.LevenbergMarquardtOptimizer(self._graph, self._result, params)
+            self._result = opt.optimize()
+            iterations += int(opt.iterations())
+        self._solve = {"iterations": iterations, "time_s": time.perf_counter() - t0,
+                       "error_initial": error_initial, "error_final": float(opt.error()),
+                       "pruned": dict(self._pruned)}
         return self._b.poses_from(self._result)
+
+    def _prune(self, values: gtsam.Values) -> int:
+        """Remove prunable factors beyond ``prune_sigmas`` at ``values``; a removed Manhattan
+        link is re-associated (frame and branch) against the solution when it then fits
+        within the gate, so a wrong association costs no information. Returns the count."""
+        cfg = self.config
+        keep, n = [], 0
+        frame_yaws = [self._b._yaw_of(values, i) for i in self._b.inst_of_frame]
+        gate_max = math.radians(cfg.gate_max_deg)
+        for idx in self._prunable:
+            f = self._graph.at(idx)
+            noise = f.noiseModel()
+            base = noise.noise() if cfg.robust_kernel != "none" else noise
+            if base.mahalanobisDistance(f.unwhitenedError(values)) <= cfg.prune_sigmas:
+                keep.append(idx)
+                continue
+            self._graph.remove(idx)
+            n += 1
+            link = self._link_of.pop(idx, None)
+            if link is None:
+                self._pruned["relative"] += 1
+                continue
+            self._pruned["manhattan"] += 1
+            theta = values.atPose2(X(link.pose)).theta()
+            best = None
+            for j, m in enumerate(frame_yaws):
+                d = m - theta - link.measured
+                b = round(d / (0.5 * math.pi))
+                r = abs(math.remainder(d - b * 0.5 * math.pi, 2 * math.pi))
+                if r <= gate_max and r <= cfg.gate_sigmas * link.sigma and (best is None or r < best[0]):
+                    best = (r, j, link.measured + b * 0.5 * math.pi)
+            if best is not None:
+                _, j, measured = best
+                new_idx = self._graph.size()
+                self._graph.add(manhattan_factor(link.pose, self._b.inst_of_frame[j], measured, link.sigma,
+                                                 kind=cfg.manhattan_factor, kernel=cfg.robust_kernel,
+                                                 parameter=cfg.manhattan_robust_parameter))
+                self._pruned["reassociated"] += 1
+                keep.append(new_idx)
+                self._link_of[new_idx] = type(link)(link.pose, j, measured, link.sigma)
+        self._prunable = keep
+        return n
 
     def _values(self) -> gtsam.Values:
         if self._result is None:

@@ -1,0 +1,216 @@
+"""Planar pose graph on synthetic runs with known truth: Manhattan factors vs chaining,
+wrong associations, batch vs iSAM2, marginals, association, relative factors, inputs."""
+import math
+
+import numpy as np
+import pytest
+
+from planar_vo.backend.config import BackendConfig
+from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
+from planar_vo.backend.simulate import (WrongAssociationInjector, simulate_manhattan_sequence,
+                                        trajectory_errors)
+from planar_vo.frontend.types import STATUS_BRIDGED, STATUS_DPP, FrameResult, ManhattanObservation, Step
+from planar_vo.geometry import se2_between, wrap_angle
+
+N = 1000
+
+
+def _solve(seq, config=None, associator=None):
+    g = PlanarPoseGraph(config or BackendConfig(), associator=associator)
+    for r in seq.results:
+        g.add_frame(r)
+    return g, g.optimize()
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return simulate_manhattan_sequence(N, seed=3)
+
+
+@pytest.fixture(scope="module")
+def batch(seq):
+    return _solve(seq)
+
+
+def test_manhattan_factors_remove_yaw_drift(seq, batch):
+    g, est = batch
+    raw = trajectory_errors(g.raw_poses(), seq.truth)
+    opt = trajectory_errors(est, seq.truth)
+    assert raw["final_yaw_deg"] > 5.0  # the simulated yaw bias really drifts
+    assert opt["final_yaw_deg"] * 10 <= raw["final_yaw_deg"]
+    assert opt["endpoint_m"] * 3 <= raw["endpoint_m"]
+    assert np.all(est[0] == pytest.approx(0.0, abs=1e-6))
+
+
+def test_without_manhattan_the_graph_is_the_chain(seq):
+    g, est = _solve(seq, BackendConfig(manhattan=False))
+    assert np.abs(est[:, :2] - g.raw_poses()[:, :2]).max() < 1e-6
+    assert np.abs(wrap_angle(est[:, 2] - g.raw_poses()[:, 2])).max() < 1e-8
+
+
+def test_association_finds_the_two_corridor_frames(seq, batch):
+    g, _ = batch
+    frames = g.manhattan_frames()
+    assert len(frames) == 2  # revisits after detours join the existing frames
+    true_yaws = np.degrees(seq.frame_yaws)  # 0 and 60 deg; 60 == -30 modulo 90
+    got = sorted(np.degrees(y) for _, y, _ in frames)
+    assert got[0] == pytest.approx(-30.0, abs=0.5) and got[1] == pytest.approx(0.0, abs=0.5)
+    assert {round(t) % 90 for t in true_yaws} == {0, 60}
+    s = g.stats
+    n_obs = sum(len(r.manhattan) for r in seq.results)
+    assert s["associations"] == n_obs and s["rejected"] == 0 and s["new_frames"] == 2
+    assert s["factors"]["manhattan"] == n_obs and s["factors"]["step"] == N - 1
+    assert sum(n for _, _, n in frames) == n_obs
+
+
+def test_wrong_associations_barely_change_the_result():
+    """20 % of the Manhattan links moved to a wrong branch or frame (mean over 4 seeds)."""
+    clean, bad = [], []
+    for seed in range(4):
+        s = simulate_manhattan_sequence(N, seed=seed)
+        cfg = BackendConfig()
+        clean.append(trajectory_errors(_solve(s, cfg)[1], s.truth))
+        inj = WrongAssociationInjector(cfg, 0.2, seed)
+        g, est = _solve(s, cfg, inj)
+        assert inj.n_corrupted > 0.15 * g.stats["associations"]
+        assert g.stats["pruned"]["manhattan"] >= 0.9 * inj.n_corrupted
+        assert g.stats["pruned"]["reassociated"] >= 0.9 * g.stats["pruned"]["manhattan"]
+        bad.append(trajectory_errors(est, s.truth))
+    for key in ("final_yaw_deg", "endpoint_m"):
+        c, b = np.mean([e[key] for e in clean]), np.mean([e[key] for e in bad])
+        assert b <= 1.10 * c, (key, b, c)
+
+
+def test_cauchy_holds_up_better_than_huber_with_wrong_associations():
+    s = simulate_manhattan_sequence(600, seed=5)
+    errs = {}
+    for kernel in ("cauchy", "huber"):
+        cfg = BackendConfig(robust_kernel=kernel, prune_sigmas=0.0)  # the kernel alone
+        errs[kernel] = trajectory_errors(_solve(s, cfg, WrongAssociationInjector(cfg, 0.2, 5))[1], s.truth)
+    assert errs["cauchy"]["rms_yaw_deg"] < 1.0
+    assert errs["huber"]["rms_yaw_deg"] > 5 * errs["cauchy"]["rms_yaw_deg"]
+
+
+def test_corrupted_observations_are_gated():
+    s = simulate_manhattan_sequence(600, seed=6, corrupt_fraction=0.2)
+    g, est = _solve(s)
+    frames = sorted(g.manhattan_frames(), key=lambda f: -f[2])
+    # the two true frames carry the observations; stray walls rarely make (small) frames
+    assert sum(f[2] for f in frames[:2]) >= 0.9 * sum(f[2] for f in frames)
+    assert sorted(round(math.degrees(f[1])) for f in frames[:2]) == [-30, 0]
+    assert g.stats["rejected"] > 0.5 * len(s.corrupted)
+    assert trajectory_errors(est, s.truth)["rms_yaw_deg"] < 1.0
+
+
+def test_isam2_agrees_with_batch(seq, batch):
+    _, est = batch
+    ig = IncrementalPlanarPoseGraph()
+    for r in seq.results:
+        ig.add_frame(r)
+    inc = ig.estimate()
+    assert ig.stats["updates"] >= N
+    assert np.abs(inc[:, :2] - est[:, :2]).max() < 1e-3
+    assert np.degrees(np.abs(wrap_angle(inc[:, 2] - est[:, 2]))).max() < 0.01
+    assert [f[0] for f in ig.manhattan_frames()] == [0, 1]
+    np.testing.assert_allclose(ig.latest(), inc[-1], atol=1e-3)
+
+
+def _chain(steps, info, manhattan=None, status=STATUS_DPP):
+    out = [FrameResult(0, 0.0, None, list(manhattan[0]) if manhattan else [])]
+    for k, p in enumerate(steps, start=1):
+        out.append(FrameResult(k, 0.1 * k, Step(np.asarray(p, float), info, status, 10),
+                               list(manhattan[k]) if manhattan else []))
+    return out
+
+
+def test_marginal_yaw_variance_of_a_chain_is_the_sum_of_step_variances():
+    rng = np.random.default_rng(7)
+    steps = np.column_stack([rng.uniform(0.05, 0.2, 50), rng.normal(0, 0.02, 50), rng.normal(0, 0.05, 50)])
+    sig = np.array([0.01, 0.02, 0.005])
+    info = np.diag(1 / sig**2)
+    cfg = BackendConfig(robust_kernel="none", manhattan=False)
+    g = PlanarPoseGraph(cfg)
+    for r in _chain(steps, info):
+        g.add_frame(r)
+    cov = g.marginal_covariances()
+    assert cov.shape == (51, 3, 3)
+    prior = math.radians(cfg.prior_sigma_theta_deg) ** 2
+    # heading is additive along a chain: var(theta_k) = prior + k * var(step theta)
+    np.testing.assert_allclose(cov[:, 2, 2], prior + np.arange(51) * sig[2] ** 2, rtol=1e-6)
+    assert np.all(np.linalg.eigvalsh(cov[1:]) > 0)
+    ig = IncrementalPlanarPoseGraph(cfg)
+    for r in _chain(steps, info):
+        ig.add_frame(r)
+    np.testing.assert_allclose(ig.marginal_covariances(), cov, rtol=1e-5, atol=1e-14)
+
+
+def test_add_relative_closes_a_loop():
+    # a square driven round once with noisy steps (consistent with their information);
+    # one loop closure back to the start
+    rng = np.random.default_rng(8)
+    truth = [np.zeros(3)]
+    for k in range(80):
+        turn = math.pi / 2 if k % 20 == 19 else 0.0
+        truth.append(np.array([*(truth[-1][:2] + 0.2 * np.array([math.cos(truth[-1][2]), math.sin(truth[-1][2])])),
+                               float(wrap_angle(truth[-1][2] + turn))]))
+    truth = np.array(truth)
+    sig = np.array([0.01, 0.01, 0.01])
+    steps = [se2_between(truth[k], truth[k + 1]) + rng.normal(0, sig) for k in range(80)]
+    info = np.diag(1 / sig**2)
+    for cls in (PlanarPoseGraph, IncrementalPlanarPoseGraph):
+        g = cls(BackendConfig(manhattan=False))
+        for r in _chain(steps, info):
+            g.add_frame(r)
+        before = np.linalg.norm((g.raw_poses()[80] - truth[80])[:2])
+        g.add_relative(80, 0, se2_between(truth[80], truth[0]), np.diag([1e6, 1e6, 1e6]))
+        assert g.stats["factors"]["relative"] == 1
+        est = g.optimize() if cls is PlanarPoseGraph else g.estimate()
+        after = np.linalg.norm((est[80] - truth[80])[:2])
+        assert before > 0.1 and after < 0.2 * before
+
+
+def test_bridged_step_is_overridden_and_repaired_by_manhattan():
+    # straight corridor at 0 deg; frame 10 is bridged with a 20-degree wrong yaw
+    steps = [np.array([0.1, 0.0, 0.0]) for _ in range(20)]
+    steps[9] = np.array([0.1, 0.0, math.radians(20.0)])
+    obs = [[ManhattanObservation(0.0, math.radians(0.5), 0.5)] for _ in range(21)]
+    info = np.diag([1e4, 1e4, 1e5])
+    res = _chain(steps, info, obs)
+    res[10].step.status = STATUS_BRIDGED
+    res[10].step.information = np.diag([1e8, 1e8, 1e8])  # a front-end that is wrongly sure
+    g = PlanarPoseGraph()
+    for r in res:
+        g.add_frame(r)
+    est = g.optimize()
+    assert np.degrees(np.abs(est[10:, 2])).max() < 0.5
+    assert g.stats["factors"]["bridged"] == 1
+
+
+def test_single_stray_observation_does_not_create_a_frame():
+    steps = [np.array([0.1, 0.0, 0.0]) for _ in range(30)]
+    obs = [[ManhattanObservation(0.0, 0.01, 0.5)] for _ in range(31)]
+    obs[15] = [ManhattanObservation(math.radians(25.0), 0.01, 0.5)]
+    g = PlanarPoseGraph()
+    for r in _chain(steps, np.eye(3) * 1e4, obs):
+        g.add_frame(r)
+    g.optimize()
+    assert len(g.manhattan_frames()) == 1 and g.stats["rejected"] == 1
+
+
+def test_inputs_are_validated():
+    g = PlanarPoseGraph()
+    g.add_frame(FrameResult(0, 0.0, None))
+    with pytest.raises(ValueError, match="step=None"):
+        g.add_frame(FrameResult(1, 0.1, None))
+    with pytest.raises(ValueError, match=r"\(3, 3\).*got shape \(2, 2\)"):
+        g.add_frame(FrameResult(1, 0.1, Step(np.zeros(3), np.eye(2), STATUS_DPP)))
+    with pytest.raises(ValueError, match="positive definite"):
+        g.add_frame(FrameResult(1, 0.1, Step(np.zeros(3), -np.eye(3), STATUS_DPP)))
+    with pytest.raises(ValueError, match=r"got shape \(2,\)"):
+        g.add_frame(FrameResult(1, 0.1, Step(np.zeros(2), np.eye(3), STATUS_DPP)))
+    with pytest.raises(ValueError, match="i=5 is not a frame"):
+        g.add_relative(5, 0, np.zeros(3), np.eye(3))
+    with pytest.raises(ValueError, match="sigma > 0"):
+        g.add_frame(FrameResult(1, 0.1, Step(np.zeros(3), np.eye(3), STATUS_DPP),
+                                [ManhattanObservation(0.1, 0.0, 1.0)]))
+    assert PlanarPoseGraph().optimize().shape == (0, 3)
