@@ -246,7 +246,8 @@ class _Builder:
             while pos < ln - 0.35:
                 r = rng.random()
                 if r < door_p and pos + 0.9 < ln - 0.35:
-                    w, hh, bottom, off, mat, design = 0.9, min(2.05, self.h - 0.15), 0.0, 0.012, MAT_DOOR, int(rng.integers(n_doors))
+                    w, hh, bottom, off = 0.9, min(2.05, self.h - 0.15), 0.0, 0.012
+                    mat, design = MAT_DOOR, int(rng.integers(n_doors))
                 elif r < door_p + poster_p:
                     w = float(rng.uniform(0.4, 0.9))
                     hh = float(min(w * rng.uniform(0.75, 1.35), 1.0))
@@ -257,9 +258,9 @@ class _Builder:
                 else:
                     pos += float(rng.uniform(0.4, 1.2))
                     continue
-                o2 = q1 + np.array([-d[0], -d[1]]) * pos + n * off
-                self.surfaces.append(Surface(LABEL_WALL, mat, np.array([o2[0], o2[1], bottom]), u_axis.copy(), _Z.copy(),
-                                             (w, hh), mframe=k, design=design, tint=tint))
+                foot = q1 - d * pos + n * off  # the wall's u runs from q1 toward q0
+                self.surfaces.append(Surface(LABEL_WALL, mat, np.array([foot[0], foot[1], bottom]), u_axis.copy(),
+                                             _Z.copy(), (w, hh), mframe=k, design=design, tint=tint))
                 pos += w + float(rng.uniform(0.3, 1.5))
 
     def add_box(self, centre, yaw: float, sx: float, sy: float, sz: float, z0: float, n_designs: int) -> None:
