@@ -83,26 +83,25 @@ def _timing_table(tmp, n_frames: int) -> None:
             path.unlink()
 
 
-def _read_in_fresh_process(path: str, queue) -> None:
-    import resource
-    import time
-
-    from planar_vo.io import open_log
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    t0 = time.perf_counter()
-    n = 0
-    checksum = 0
-    with open_log(path) as log:
-        for f in log.frames():
-            n += 1
-            checksum += int(f.color[0, 0, 0])
-    dt = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    queue.put((n, dt, before, after, checksum))
+_READER = """
+import json, resource, sys, time
+from planar_vo.io import open_log
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+t0 = time.perf_counter()
+n = 0
+with open_log(sys.argv[1]) as log:
+    for f in log.frames():
+        n += 1
+dt = time.perf_counter() - t0
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+print(json.dumps([n, dt, before, after]))
+"""
 
 
 def _memory_run(tmp, size_gb: float) -> bool:
-    import multiprocessing as mp
+    import json
+    import subprocess
+    import sys
     import time
 
     import numpy as np
@@ -124,12 +123,11 @@ def _memory_run(tmp, size_gb: float) -> bool:
     gen_s = time.perf_counter() - t0
     size = path.stat().st_size
     print(f"\nstreaming memory: generated {path} ({size / 1e9:.2f} GB, {n} raw bgr8 + 16UC1 frames) in {gen_s:.1f} s")
-    ctx = mp.get_context("spawn")
-    queue = ctx.Queue()
-    proc = ctx.Process(target=_read_in_fresh_process, args=(str(path), queue))
-    proc.start()
-    frames, dt, before, after, _ = queue.get()
-    proc.join()
+    # A fresh process, so the peak RSS is the reader's alone (ru_maxrss is KiB on Linux).
+    res = subprocess.run([sys.executable, "-c", _READER, str(path)], capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        raise RuntimeError(f"reader process failed: {res.stderr.strip().splitlines()[-1:]}")
+    frames, dt, before, after = json.loads(res.stdout.strip().splitlines()[-1])
     ok = frames == n and after < RSS_TARGET_MB
     print(f"read {frames} frames in {dt:.1f} s = {frames / dt:.1f} frames/s ({size / dt / 1e6:.0f} MB/s)")
     print(f"reader peak RSS: {before:.0f} MB after imports, {after:.0f} MB after streaming the whole log "
