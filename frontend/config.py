@@ -98,7 +98,7 @@ class FeatureConfig:
     min_distance: int = 12           # pixels between corners (klt)
     block_size: int = 3
     detect_half: bool = True         # detect at half resolution, refine at full (klt)
-    klt_window: int = 15
+    klt_window: int = 11
     klt_levels: int = 3
     klt_iterations: int = 10
     klt_min_eig: float = 2e-3        # LK's minimum eigenvalue (per pixel^2, grey levels / 255)
@@ -120,12 +120,14 @@ class FeatureConfig:
 class OdometryConfig:
     """Estimator choice, acceptance and bridging."""
 
-    min_inliers: int = 12            # fewer inliers: the estimator failed
+    min_inliers: int = 20            # fewer inliers: the estimator failed
     min_inlier_ratio: float = 0.3
-    min_scale_inliers: int = 8       # 2-point: matches with depth that agree on the metric scale
+    min_scale_inliers: int = 12      # 2-point: matches with depth that agree on the metric scale
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
-    dpp_min_score: float = 0.05      # local frames covering less image area are not used
+    dpp_min_score: float = 0.05      # local frames covering less image area (in both views) are not used
+    dpp_min_track_age: int = 3       # nor frames seen for fewer consecutive frames (walls entering view)
+    fuse_yaw: bool = True            # check and fuse the Manhattan yaw with the 2-point yaw
     ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
     ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx
     ransac_iterations: int = 200

@@ -32,7 +32,8 @@ class LocalFrame:
     standard deviation (rad). ``score``: image-area fraction of its walls.
     ``walls``: indices of its walls in the input list. ``track_id``: set by the tracker.
     ``prev_heading``: the same track's heading in the previous frame, when it was seen
-    there (for the direction-plus-point yaw), else None.
+    there (for the direction-plus-point yaw), else None. ``age``: consecutive frames the
+    track has been seen (a wall entering the view gives biased headings at first).
     """
 
     heading: float
@@ -41,6 +42,7 @@ class LocalFrame:
     walls: list[int] = field(default_factory=list)
     track_id: int = -1
     prev_heading: float | None = None
+    age: int = 1  # consecutive frames the track has been seen, this one included
 
 
 def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> list[LocalFrame]:
@@ -97,6 +99,7 @@ class _Track:
     heading: float          # in the latest levelled camera frame, wrapped
     last_seen: int          # frame counter
     missed: int = 0
+    age: int = 1            # consecutive frames seen
 
 
 class ManhattanTracker:
@@ -134,7 +137,9 @@ class ManhattanTracker:
                 continue
             free.remove(best)
             f.track_id = best.id
-            f.prev_heading = best.heading if best.last_seen == self._frame - 1 else None
+            consecutive = best.last_seen == self._frame - 1
+            f.prev_heading = best.heading if consecutive else None
+            f.age = best.age + 1 if consecutive else 1
 
     def commit(self, frames: list[LocalFrame], yaw_step: float) -> None:
         """After the step (yaw, rad) into this image is known: update, carry and prune tracks."""
@@ -143,7 +148,7 @@ class ManhattanTracker:
         for t in self._tracks:
             f = seen.pop(t.id, None)
             if f is not None:
-                t.heading, t.last_seen, t.missed = f.heading, self._frame, 0
+                t.heading, t.last_seen, t.missed, t.age = f.heading, self._frame, 0, f.age
             else:
                 t.heading = float(wrap_quarter(t.heading - yaw_step))
                 t.missed += 1

@@ -118,6 +118,7 @@ class PlanarOdometry:
                                               seed=o.seed)
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
+        self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
         self.last_detection: PlaneDetection | None = None
 
@@ -236,11 +237,15 @@ class PlanarOdometry:
         # 1. Direction-plus-point with a local frame seen in both views: the dominant
         # usable one, unless its 1-point inlier ratio is poor -- then the best of them.
         prev_sigma = {f.track_id: f.sigma for f in prev.frames}
+        prev_score = {f.track_id: f.score for f in prev.frames}
         n_depth = max(int(depth_ok.sum()), 1)
         best = None
         mf_yaw = None  # (yaw, sigma) of the dominant usable local frame, kept for bridging
-        for f in frames:
-            if f.prev_heading is None or f.track_id not in prev_sigma or f.score < c.dpp_min_score:
+        # The yaw telescopes (drift-free) only along one track: stay with the last one used.
+        ordered = sorted(frames, key=lambda f: (f.track_id != self._dpp_track, -f.score))
+        for f in ordered:
+            if (f.prev_heading is None or f.track_id not in prev_sigma or f.age < c.dpp_min_track_age
+                    or min(f.score, prev_score[f.track_id]) < c.dpp_min_score):
                 continue
             yaw_sigma = math.hypot(f.sigma, prev_sigma[f.track_id])
             if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
@@ -254,16 +259,14 @@ class PlanarOdometry:
             if motion is None or est.num_inliers < c.min_inliers:
                 continue
             if best is None or est.num_inliers > best[1].num_inliers:
-                best = (motion, est)
+                best = (motion, est, f.track_id)
             if est.num_inliers >= 0.8 * n_depth:
                 break
-        if best is not None and best[1].num_inliers >= c.dpp_min_inlier_ratio * n_depth:
-            motion, est = best
-            step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_DPP, est.num_inliers, mount_se2, info)
-            if step is not None:
-                return step
+        dpp = best if best is not None and best[1].num_inliers >= c.dpp_min_inlier_ratio * n_depth else None
 
-        # 2. 2-point homography with metric scale from depth.
+        # 2. 2-point homography with metric scale from depth: the step when no Manhattan
+        # frame is shared, and a cross-check of the Manhattan yaw when one is.
+        two = None
         if len(x1) >= 2:
             motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._2pt_opt)
             n_in = est.num_inliers
@@ -273,10 +276,39 @@ class PlanarOdometry:
             # A scale from a handful of depths cannot be checked against outliers.
             if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
                     and n_scale >= c.min_scale_inliers and abs(motion.yaw) <= max_yaw
-                    and est.covariance is not None):
-                step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_2PT, n_in, mount_se2, info)
+                    and est.covariance is not None and est.covariance[0, 0] > 0):
+                two = (motion, est)
+
+        if dpp is not None:
+            motion, est, tid = dpp
+            yaw, var = motion.yaw, est.covariance[0, 0]
+            if two is not None and c.fuse_yaw:
+                # Both yaws measure the same rotation: a wrong Manhattan association shows as
+                # a disagreement (then the 2-point step stands); else fuse them by their
+                # variances and take the 1-point translation at the fused yaw.
+                yaw2, var2 = two[0].yaw, two[1].covariance[0, 0]
+                d = float(geometry.wrap_angle(yaw - yaw2))
+                info["yaw_check"] = {"dpp_minus_2pt_deg": math.degrees(d),
+                                     "sigma_deg": math.degrees(math.sqrt(var + var2))}
+                if d * d > 9.0 * (var + var2):
+                    dpp = None
+                else:
+                    yaw_f = yaw - d * var / (var + var2)
+                    motion, est = estimate_planar_motion_dpp(P1, P2, yaw_f, self._dpp_opt,
+                                                             yaw_sigma=math.sqrt(var * var2 / (var + var2)))
+                    if motion is None:
+                        dpp = None
+            if dpp is not None:
+                step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_DPP, est.num_inliers,
+                                    mount_se2, info)
                 if step is not None:
+                    self._dpp_track = tid
                     return step
+        if two is not None:
+            motion, est = two
+            step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_2PT, est.num_inliers, mount_se2, info)
+            if step is not None:
+                return step
 
         # 3. Bridge, flagged: constant velocity (or zero) translation with a large
         # covariance; the yaw from a shared Manhattan frame when there is one (it does not

@@ -355,17 +355,19 @@ class PlaneDetector:
         q = None
         thr = tol
         rel = None
-        for it in range(self.config.refit_iterations + 1):
+
+        def normal_equations(sel):
             m = sel.astype(np.float64)
-            n = m.sum()
+            xm, ym = x * m, y * m
+            sx, sy, n = xm.sum(), ym.sum(), m.sum()
+            sxy = xm @ y
+            AtA = np.array([[xm @ x, sxy, sx], [sxy, ym @ y, sy], [sx, sy, n]])
+            return AtA, np.array([xm @ w, ym @ w, m @ w]), n
+
+        for it in range(self.config.refit_iterations + 1):
+            AtA, Atb, n = normal_equations(sel)
             if n < 10:
                 return None
-            xm, ym = x * m, y * m
-            AtA = np.array([[xm @ x, xm @ y, xm.sum()],
-                            [0.0, ym @ y, ym.sum()],
-                            [0.0, 0.0, n]])
-            AtA[1, 0], AtA[2, 0], AtA[2, 1] = AtA[0, 1], AtA[0, 2], AtA[1, 2]
-            Atb = np.array([xm @ w, ym @ w, m @ w])
             try:
                 q = np.linalg.solve(AtA, Atb)
             except np.linalg.LinAlgError:
@@ -380,12 +382,10 @@ class PlaneDetector:
         k = np.flatnonzero(sel)
         if len(k) < 10:
             return None
-        xk, yk = x[k], y[k]
         r = w[k] * rel[k]
         s2 = float(r @ r) / max(len(k) - 3, 1)
-        A = np.column_stack([xk, yk, np.ones(len(k))])
         try:
-            cov = s2 * np.linalg.inv(A.T @ A)
+            cov = s2 * np.linalg.inv(normal_equations(sel)[0])
         except np.linalg.LinAlgError:
             return None
         nq = float(np.linalg.norm(q))
