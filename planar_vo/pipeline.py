@@ -29,6 +29,7 @@ import numpy as np
 from planar_vo.config import RunConfig, dump_config
 from planar_vo.errors import InputError, PartialResult
 from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, mount_rotation, se2_to_matrix
+from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
 
 
@@ -119,28 +120,30 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
         frame_infos = []
         stop_reason = None
         partial = False
-        frames = log.frames(start=c.start, stop=c.stop, stride=c.stride)
-        t_read = time.perf_counter()
+        reader = Prefetcher(log.frames(start=c.start, stop=c.stop, stride=c.stride), depth=4)
+        t_wait = time.perf_counter()
         try:
-            for frame in frames:
-                t0 = time.perf_counter()
-                timings["read"] += t0 - t_read
-                result = odo.process(frame)
-                t1 = time.perf_counter()
-                timings["frontend"] += t1 - t0
-                for k, v in result.timings.items():
-                    timings[f"frontend.{k}"] += v
-                graph.add_frame(result)
-                t_read = time.perf_counter()
-                timings["backend"] += t_read - t1
-                stamps.append(frame.stamp)
-                statuses[result.step.status if result.step is not None else "first"] += 1
-                frame_infos.append(_frame_summary(result))
-                bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
+            with reader:
+                for frame in reader:
+                    t0 = time.perf_counter()
+                    timings["read_wait"] += t0 - t_wait
+                    result = odo.process(frame)
+                    t1 = time.perf_counter()
+                    timings["frontend"] += t1 - t0
+                    for k, v in result.timings.items():
+                        timings[f"frontend.{k}"] += v
+                    graph.add_frame(result)
+                    t_wait = time.perf_counter()
+                    timings["backend"] += t_wait - t1
+                    stamps.append(frame.stamp)
+                    statuses[result.step.status if result.step is not None else "first"] += 1
+                    frame_infos.append(_frame_summary(result))
+                    bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         except KeyboardInterrupt:
             partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
         except PartialResult as exc:
             partial, stop_reason = True, str(exc)
+        timings["read_decode_background"] += reader.busy_s
         bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         stats = dict(log.stats)
         gt = log.ground_truth
