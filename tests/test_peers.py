@@ -283,3 +283,30 @@ def test_format_table_ratios_and_missing_values():
     assert "loop.mcap: 300 frames 640x480, ground truth 300 poses, path 10.00 m" in text
     assert "= 4.00x (target >= 3x: met)" in text and "= 7.50x (target >= 5x: met)" in text
     assert "n/a" in text  # the NaN yaw error
+
+
+def test_bench_peers_with_planar_vo_on_a_synthetic_log(lturn_log, capsys):
+    """planar-vo's rows, end-to-end fps and both target ratios, on the first 12 frames."""
+    import json
+
+    bench, args = _bench_args(lturn_log, "--frames", "12", "--methods", "planar_vo", "open3d_tensor",
+                              "--json", lturn_log.parent / "peers12.json")
+    assert bench.main(args) == 0
+    text = capsys.readouterr().out
+    res = json.loads((lturn_log.parent / "peers12.json").read_text())["logs"][0]
+    m = res["methods"]
+    assert list(m) == ["planar_vo_raw", "planar_vo_smoothed", "open3d_tensor"]
+    assert res["ground_truth"]["source"].endswith("(/ground_truth)")
+    for name, r in m.items():
+        assert r["frames"] == 12 and r["errors"]["matched"] == 12, name
+        assert r["ms_per_frame"] > 0
+        # 12 frames at 0.5 m/s after a 1 s ramp: a few decimetres, a few millimetres of error
+        assert r["errors"]["ate_rmse_m"] < 0.02, (name, r["errors"])
+    e2e = res["planar_vo_end_to_end"]
+    assert e2e["fps"] > 0 and e2e["decode_ms_per_frame"] > 0
+    q = res["ratios"]
+    assert q["speedup_vs_open3d_tensor"] == pytest.approx(e2e["fps"] * m["open3d_tensor"]["ms_per_frame"] / 1000)
+    assert q["best_peer"] == "open3d_tensor"
+    assert q["drift_ratio_best_peer_over_planar_vo"] == pytest.approx(
+        m["open3d_tensor"]["errors"]["endpoint_drift_pct"] / m["planar_vo_smoothed"]["errors"]["endpoint_drift_pct"])
+    assert "planar-vo end-to-end fps / Open3D tensor fps" in text and "best peer (Open3D tensor" in text
