@@ -6,10 +6,16 @@ associate corners with the previous frame and lift them to levelled 3-D. The ste
 the previous frame is then estimated by
 
 1. direction-plus-point (Sec. 2.1): the yaw from a local Manhattan frame seen in both
-   frames (eq. 1), the translation by 1-point RANSAC on 3-D matches (eq. 2); else
-2. the 2-point planar homography (Sec. 2.2) with metric scale from depth; else
+   frames (eq. 1), the translation by 1-point RANSAC on 3-D matches (eq. 2). The frame
+   must be tracked for a few frames and cover enough image area in both views (walls
+   entering the view give biased headings). When the 2-point estimate below is also
+   available, the two yaws are checked against each other (a disagreement beyond
+   3 sigma means a wrong Manhattan association: the 2-point step is used) and fused by
+   their variances, and the 1-point translation is taken at the fused yaw; else
+2. the 2-point planar homography (Sec. 2.2) with metric scale from depth (enough matches
+   with depth must agree on the scale); else
 3. a bridge, flagged ``STATUS_BRIDGED``: constant velocity (or zero motion) with a large
-   covariance -- never silently.
+   covariance -- never silently. A shared large Manhattan frame still gives the yaw.
 
 Steps are reported as base_link SE(2) increments with an information matrix in
 gtsam.Pose2 tangent order ``[x, y, theta]``, propagated from the estimator's covariance
