@@ -38,6 +38,7 @@ from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOption
 from planar_vo.frontend.features import FeatureSet, FeatureTracker
 from planar_vo.frontend.levelling import Levelling, LevellingState
 from planar_vo.frontend.manhattan import LocalFrame, ManhattanTracker, group_walls
+from planar_vo.frontend.planarity import out_of_plane_motion
 from planar_vo.frontend.planes import PlaneDetection, PlaneDetector
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
 from planar_vo.frontend.types import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, FrameResult,
@@ -237,6 +238,11 @@ class PlanarOdometry:
         x1, x2, P1, P2 = x1[ok], x2[ok], P1[ok], P2[ok]
         depth_ok = np.isfinite(P1[:, 2]) & np.isfinite(P2[:, 2])
         info["matches_with_depth"] = int(depth_ok.sum())
+        if c.planarity_check and depth_ok.sum() >= 8:
+            oop = out_of_plane_motion(P1[depth_ok], P2[depth_ok], seed=c.seed)
+            if oop is not None:
+                info["out_of_plane"] = {"tilt_deg": oop.tilt_deg, "dy_m": oop.dy_m, "inliers": oop.inliers,
+                                        "R": oop.R.tolist(), "t": oop.t.tolist()}
         max_yaw = math.radians(c.max_step_yaw_deg)
         mount_se2 = geometry.mount_se2(self.mount.T_base_cam)
 

@@ -188,7 +188,7 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
             "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
         },
         "mount": _mount_report(odo.mount),
-        "planarity": _planarity_report(frame_infos),
+        "planarity": _planarity_report(frame_infos, levelled=_is_levelled(mount, frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
@@ -206,42 +206,90 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
 def _frame_summary(result) -> dict:
     info = result.info or {}
     lev = info.get("levelling") or {}
+    oop = info.get("out_of_plane")
     return {
-        "floor_seen": bool(info.get("floor_seen", lev.get("floor_seen", False))),
         "floor_normal_cam": lev.get("floor_normal_cam"),
         "camera_height_m": lev.get("camera_height_m"),
+        "motion_6dof": (oop["R"], oop["t"]) if oop else None,
     }
 
 
-def _planarity_report(frame_infos: list[dict]) -> dict:
-    """Is the motion planar? Judged from the floor the front-end measured in each frame.
+#: Beyond these the motion is not planar: camera height (m) and tilt (deg) ranges, p5-p95.
+PLANAR_HEIGHT_RANGE_M = 0.05
+PLANAR_TILT_RANGE_DEG = 3.0
 
-    On a planar robot the floor normal in the camera frame and the camera height stay
-    fixed; a handheld camera changes both (or shows no floor at all).
+
+def _spread(values) -> float:
+    v = np.asarray(values, dtype=float)
+    return float(np.percentile(v, 95) - np.percentile(v, 5)) if len(v) else float("nan")
+
+
+def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
+    """Is the motion planar? Two independent pieces of evidence, both from the data.
+
+    * floor: on a planar robot the floor normal in the camera frame and the camera height
+      stay fixed (handheld cameras change both, or show no floor at all);
+    * motion: the per-step 6-DoF fits (:mod:`planar_vo.frontend.planarity`) chained into a
+      trajectory in the first levelled frame must keep its height and its vertical axis.
+      Without a mount or a floor the estimator assumes a level camera, and so does this test.
     """
+    n = len(frame_infos)
+    rep: dict = {"frames": n}
+    verdicts = []
     normals = [np.asarray(f["floor_normal_cam"], float) for f in frame_infos if f.get("floor_normal_cam") is not None]
     heights = [float(f["camera_height_m"]) for f in frame_infos if f.get("camera_height_m") is not None]
-    n = len(frame_infos)
-    seen = len(normals)
-    rep = {"frames": n, "floor_seen_frames": seen}
-    if seen < max(3, 0.2 * n):
-        rep.update(verdict="unverified",
-                   message=f"the floor was seen in {seen} of {n} frames: planar motion could not be verified "
-                           "and the planar model may not hold")
-        return rep
-    N = np.stack(normals)
-    mean = N.mean(0)
-    mean /= np.linalg.norm(mean)
-    ang = np.degrees(np.arccos(np.clip(N @ mean, -1, 1)))
-    spread = float(np.percentile(ang, 95))
-    h_range = float(np.percentile(heights, 95) - np.percentile(heights, 5)) if heights else float("nan")
-    rep.update(floor_normal_spread_deg_p95=round(spread, 3), camera_height_range_m_p90=round(h_range, 4))
-    planar = spread < 3.0 and (not heights or h_range < 0.05)
-    rep["verdict"] = "planar" if planar else "not_planar"
-    rep["message"] = ("camera tilt and height stay constant: consistent with planar motion" if planar else
-                      f"the camera tilt varies by {spread:.1f} deg and its height by {h_range:.2f} m: "
-                      "the motion is NOT planar, so the planar estimates are approximations")
+    rep["floor_seen_frames"] = len(normals)
+    if len(normals) >= max(3, 0.2 * n):
+        N = np.stack(normals)
+        mean = N.mean(0) / np.linalg.norm(N.mean(0))
+        tilt = _spread(np.degrees(np.arccos(np.clip(N @ mean, -1, 1))))
+        h = _spread(heights)
+        rep["floor"] = {"tilt_range_deg": round(tilt, 3), "height_range_m": round(h, 4)}
+        verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and h < PLANAR_HEIGHT_RANGE_M)
+
+    T = np.eye(4)
+    pos, yax, fitted = [T[:3, 3].copy()], [T[:3, 1].copy()], 0
+    for f in frame_infos[1:]:
+        m = f.get("motion_6dof")
+        if m is not None:
+            T21 = np.eye(4)
+            T21[:3, :3], T21[:3, 3] = np.asarray(m[0]), np.asarray(m[1])
+            T = T @ np.linalg.inv(T21)
+            fitted += 1
+        pos.append(T[:3, 3].copy())
+        yax.append(T[:3, 1].copy())
+    P, Y = np.array(pos), np.array(yax)
+    if fitted >= max(3, 0.5 * (n - 1)):
+        # Gravity as the estimator used it: measured (floor, mount) or assumed (camera level).
+        height = _spread(P[:, 1])
+        tilt = _spread(np.degrees(np.arccos(np.clip(Y[:, 1], -1, 1))))
+        rep["motion"] = {"steps_fitted": fitted, "height_range_m": round(height, 4),
+                         "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed"}
+        verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M)
+
+    if not verdicts:
+        rep["verdict"] = "unverified"
+        rep["message"] = (f"the floor was seen in {len(normals)} of {n} frames and the motion could not be "
+                          "fitted: planar motion is unverified and the planar model may not hold")
+    elif all(verdicts):
+        rep["verdict"] = "planar"
+        rep["message"] = "camera height and tilt stay constant: consistent with planar motion"
+    else:
+        worst = rep.get("motion") or rep.get("floor")
+        rep["verdict"] = "not_planar"
+        rep["message"] = (f"the camera's height varies by {worst['height_range_m']:.2f} m and its tilt by "
+                          f"{worst['tilt_range_deg']:.1f} deg: the motion is NOT planar (handheld?), so the "
+                          "planar estimates are approximations"
+                          + ("" if levelled else "; no floor and no mount: the camera was assumed level, "
+                             "give --pitch-deg/--roll-deg if it is a tilted robot camera"))
     return rep
+
+
+def _is_levelled(mount, frame_infos) -> bool:
+    """True when gravity is known: a mount tilt was given, or the floor was seen."""
+    if mount is not None and np.all(np.isfinite(np.asarray(mount.T_base_cam)[:3, :3])):
+        return True
+    return any(f.get("floor_normal_cam") is not None for f in frame_infos)
 
 
 def _mount_report(mount) -> dict:
