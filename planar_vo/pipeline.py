@@ -224,14 +224,33 @@ def _spread(values) -> float:
     return float(np.percentile(v, 95) - np.percentile(v, 5)) if len(v) else float("nan")
 
 
+MOTION_WINDOW = 100
+
+
+def _chain(steps) -> tuple[np.ndarray, np.ndarray]:
+    """Camera positions (n+1, 3) and y axes (n+1, 3) in the first levelled frame from steps
+    ``(R, t)`` with ``X2 = R X1 + t`` (None: no fit, taken as no motion)."""
+    T = np.eye(4)
+    pos, yax = [T[:3, 3].copy()], [T[:3, 1].copy()]
+    for m in steps:
+        if m is not None:
+            T21 = np.eye(4)
+            T21[:3, :3], T21[:3, 3] = np.asarray(m[0]), np.asarray(m[1])
+            T = T @ np.linalg.inv(T21)
+        pos.append(T[:3, 3].copy())
+        yax.append(T[:3, 1].copy())
+    return np.array(pos), np.array(yax)
+
+
 def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
     """Is the motion planar? Two independent pieces of evidence, both from the data.
 
     * floor: on a planar robot the floor normal in the camera frame and the camera height
       stay fixed (handheld cameras change both, or show no floor at all);
-    * motion: the per-step 6-DoF fits (:mod:`planar_vo.frontend.planarity`) chained into a
-      trajectory in the first levelled frame must keep its height and its vertical axis.
-      Without a mount or a floor the estimator assumes a level camera, and so does this test.
+    * motion (decides when the floor was not seen): the per-step 6-DoF fits
+      (:mod:`planar_vo.frontend.planarity`) chained over windows of ``MOTION_WINDOW`` steps in
+      the levelled frame must keep their height and vertical axis. Without a mount or a floor
+      the estimator assumes a level camera, and so does this test.
     """
     n = len(frame_infos)
     rep: dict = {"frames": n}
@@ -247,25 +266,23 @@ def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
         rep["floor"] = {"tilt_range_deg": round(tilt, 3), "height_range_m": round(h, 4)}
         verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and h < PLANAR_HEIGHT_RANGE_M)
 
-    T = np.eye(4)
-    pos, yax, fitted = [T[:3, 3].copy()], [T[:3, 1].copy()], 0
-    for f in frame_infos[1:]:
-        m = f.get("motion_6dof")
-        if m is not None:
-            T21 = np.eye(4)
-            T21[:3, :3], T21[:3, 3] = np.asarray(m[0]), np.asarray(m[1])
-            T = T @ np.linalg.inv(T21)
-            fitted += 1
-        pos.append(T[:3, 3].copy())
-        yax.append(T[:3, 1].copy())
-    P, Y = np.array(pos), np.array(yax)
-    if fitted >= max(3, 0.5 * (n - 1)):
-        # Gravity as the estimator used it: measured (floor, mount) or assumed (camera level).
-        height = _spread(P[:, 1])
-        tilt = _spread(np.degrees(np.arccos(np.clip(Y[:, 1], -1, 1))))
-        rep["motion"] = {"steps_fitted": fitted, "height_range_m": round(height, 4),
+    # Chained 6-DoF steps random-walk (a few cm and degrees over hundreds of frames), so
+    # they are judged over windows of at most MOTION_WINDOW steps, and only when the floor,
+    # far more precise, was not seen.
+    steps = [f.get("motion_6dof") for f in frame_infos[1:]]
+    fitted = sum(m is not None for m in steps)
+    if fitted >= max(3, 0.5 * len(steps)):
+        heights, tilts = [], []
+        w = MOTION_WINDOW
+        for a in range(0, max(1, len(steps) - w // 2), w // 2):
+            P, Y = _chain(steps[a:a + w])
+            heights.append(_spread(P[:, 1]))
+            tilts.append(_spread(np.degrees(np.arccos(np.clip(Y[:, 1], -1, 1)))))
+        height, tilt = max(heights), max(tilts)
+        rep["motion"] = {"steps_fitted": fitted, "window_steps": w, "height_range_m": round(height, 4),
                          "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed"}
-        verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M)
+        if not verdicts:
+            verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M)
 
     if not verdicts:
         rep["verdict"] = "unverified"
@@ -275,7 +292,7 @@ def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
         rep["verdict"] = "planar"
         rep["message"] = "camera height and tilt stay constant: consistent with planar motion"
     else:
-        worst = rep.get("motion") or rep.get("floor")
+        worst = rep.get("floor") or rep.get("motion")
         rep["verdict"] = "not_planar"
         rep["message"] = (f"the camera's height varies by {worst['height_range_m']:.2f} m and its tilt by "
                           f"{worst['tilt_range_deg']:.1f} deg: the motion is NOT planar (handheld?), so the "
