@@ -11,6 +11,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "backend": ("planar_vo.bench.backend", "10,000-pose graph: batch LM and iSAM2 timings"),
     "io": ("planar_vo.bench.io", "peak memory while streaming a >= 1 GB log"),
     "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
+    "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),
 }
 
 
