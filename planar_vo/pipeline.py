@@ -17,8 +17,11 @@ still written and the returned report says ``partial``.
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import json
 import math
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -42,6 +45,57 @@ class RunResult:
     files: dict = field(default_factory=dict)
 
 
+
+
+#: ``(set, get)`` thread-count entry points of the OpenBLAS builds found in the wild: the
+#: plain library (OpenCV's wheels) and the symbol-prefixed one of numpy/scipy wheels.
+_OPENBLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
+                     ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+                     ("openblas_set_num_threads64_", "openblas_get_num_threads64_"))
+
+
+def _loaded_openblas() -> list[tuple]:
+    """``(set, get)`` ctypes functions of every OpenBLAS loaded in this process (Linux)."""
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.rsplit("/", 1)[-1].lower()})
+    except OSError:  # not Linux: leave the libraries as they are
+        return []
+    found = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)  # already mapped: this only takes a handle
+        except OSError:
+            continue
+        for set_name, get_name in _OPENBLAS_SYMBOLS:
+            if hasattr(lib, set_name) and hasattr(lib, get_name):
+                setter, getter = getattr(lib, set_name), getattr(lib, get_name)
+                setter.argtypes, setter.restype, getter.restype = [ctypes.c_int], None, ctypes.c_int
+                found.append((setter, getter))
+                break
+    return found
+
+
+@contextlib.contextmanager
+def blas_threads(n: int = 1):
+    """Run the body with at most ``n`` OpenBLAS threads, restoring the previous counts.
+
+    The front-end's BLAS calls are all small (dot products over ~10^4 samples, 3x3
+    solves): threads cannot pay for their start-up there, and idle OpenBLAS workers
+    spin, competing with the decoding thread for the cores. On a loaded 2-core machine
+    the default (one BLAS thread per core) made the plane detector ~10x slower.
+    """
+    if "numpy" not in sys.modules:
+        import numpy  # noqa: F401 - load its BLAS so that it can be limited
+    libs = _loaded_openblas()
+    before = [get() for _, get in libs]
+    for set_, _ in libs:
+        set_(n)
+    try:
+        yield
+    finally:
+        for (set_, _), k in zip(libs, before):
+            set_(k)
 
 
 def open_input(log_path: str | Path, config: RunConfig):
@@ -92,6 +146,11 @@ def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
 def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = None, *,
         progress: bool = True, gt_path: str | Path | None = None) -> RunResult:
     """Run the whole job on one log; see the module docstring for the outputs."""
+    with blas_threads(1):
+        return _run(log_path, out_dir, config, progress=progress, gt_path=gt_path)
+
+
+def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
     from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
     from planar_vo.frontend.odometry import PlanarOdometry
 
@@ -107,13 +166,12 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
         odo = PlanarOdometry(intr, mount, config.frontend)
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
         c = config.input
+        # One scan of the log describes it for the report and sizes the progress bar.
+        log_summary = _safe_summary(log)
         total = None
-        try:
-            n_log = log.summary().frame_count
-            stop = n_log if c.stop is None else min(c.stop, n_log)
+        if log_summary.get("frames") is not None:
+            stop = log_summary["frames"] if c.stop is None else min(c.stop, log_summary["frames"])
             total = max(0, math.ceil((stop - c.start) / c.stride))
-        except Exception:  # noqa: BLE001 - the total is only for the progress bar
-            total = None
         bar = Progress(total, enabled=progress)
         stamps: list[float] = []
         statuses = Counter()
@@ -147,7 +205,6 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
         bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         stats = dict(log.stats)
         gt = log.ground_truth
-        log_summary = _safe_summary(log)
 
     if not stamps:
         raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
