@@ -8,7 +8,7 @@ writes the run folder:
 ``raw.tum`` / ``smoothed.tum``  camera optical-frame poses ``T_odom_cam``, one line per
                                 colour frame with a pose, stamped with its colour stamp;
 ``poses.mcap``                  both trajectories and the frame tree (Foxglove schemas);
-``report.json``                 counts, statuses, timings per stage, frames per second;
+``report.json``                 counts, statuses, wall and CPU time per stage, frames per second;
 ``config.yaml``                 the resolved configuration;
 ``trajectory.png``              raw, smoothed and ground truth (when known), from above.
 
@@ -158,7 +158,9 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     timings = Counter()
+    cpu = Counter()  # CPU seconds per stage (thread time), comparable on a loaded machine
 
     with open_input(log_path, config) as log:
         intr = log.intrinsics
@@ -167,7 +169,9 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
         c = config.input
         # One scan of the log describes it for the report and sizes the progress bar.
+        c0 = time.thread_time()
         log_summary = _safe_summary(log)
+        cpu["summary"] += time.thread_time() - c0
         total = None
         if log_summary.get("frames") is not None:
             stop = log_summary["frames"] if c.stop is None else min(c.stop, log_summary["frames"])
@@ -183,16 +187,18 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
         try:
             with reader:
                 for frame in reader:
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.thread_time()
                     timings["read_wait"] += t0 - t_wait
                     result = odo.process(frame)
-                    t1 = time.perf_counter()
+                    t1, c1 = time.perf_counter(), time.thread_time()
                     timings["frontend"] += t1 - t0
+                    cpu["frontend"] += c1 - c0
                     for k, v in result.timings.items():
                         timings[f"frontend.{k}"] += v
                     graph.add_frame(result)
                     t_wait = time.perf_counter()
                     timings["backend"] += t_wait - t1
+                    cpu["backend"] += time.thread_time() - c1
                     stamps.append(frame.stamp)
                     statuses[result.step.status if result.step is not None else "first"] += 1
                     frame_infos.append(_frame_summary(result))
@@ -202,6 +208,7 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
         except PartialResult as exc:
             partial, stop_reason = True, str(exc)
         timings["read_decode_background"] += reader.busy_s
+        cpu["read_decode_background"] += reader.busy_cpu_s
         bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         stats = dict(log.stats)
         gt = log.ground_truth
@@ -211,20 +218,23 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
                          + (f" ({stop_reason})" if stop_reason else "")
                          + "; check the topics with 'planar-vo info'")
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     raw = graph.raw_poses()
     smoothed = graph.estimate() if config.solver == "online" else graph.optimize()
     timings["optimize"] += time.perf_counter() - t0
+    cpu["optimize"] += time.thread_time() - c0
 
     if gt_path is not None:
         from planar_vo.io.trajectory import read_tum_trajectory
         gt = read_tum_trajectory(gt_path)
 
     T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
     timings["write"] += time.perf_counter() - t0
+    cpu["write"] += time.thread_time() - c0
     wall = time.perf_counter() - t_start
+    cpu["process"] = time.process_time() - cpu_start  # all threads, OpenCV's workers included
 
     n = len(stamps)
     report = {
@@ -250,6 +260,7 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
         "timings_ms_per_frame": {k: round(1000 * v / n, 3) for k, v in sorted(timings.items())},
+        "cpu_ms_per_frame": {k: round(1000 * v / n, 3) for k, v in sorted(cpu.items())},
         "wall_time_s": round(wall, 3),
         "fps": round(n / wall, 2) if wall > 0 else None,
         "fps_excluding_writing": round(n / max(wall - timings["write"], 1e-9), 2),

@@ -17,7 +17,8 @@ class Prefetcher:
     """Iterate ``source`` in a thread, at most ``depth`` items ahead.
 
     Exceptions raised by ``source`` are re-raised in the consumer at the point where the
-    stream stopped. ``busy_s`` is the producer's own time (reading and decoding).
+    stream stopped. ``busy_s`` is the producer's own time (reading and decoding), wall
+    clock; ``busy_cpu_s`` the same in CPU time of the producer thread.
     Use as a context manager so that an early exit (Ctrl-C) stops the thread.
     """
 
@@ -26,6 +27,7 @@ class Prefetcher:
         self._q: queue.Queue = queue.Queue(maxsize=max(1, depth))
         self._stop = threading.Event()
         self.busy_s = 0.0
+        self.busy_cpu_s = 0.0
         self._thread = threading.Thread(target=self._run, name="planar-vo-reader", daemon=True)
         self._thread.start()
 
@@ -42,13 +44,14 @@ class Prefetcher:
         it = iter(self._source)
         try:
             while not self._stop.is_set():
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.thread_time()
                 try:
                     item = next(it)
                 except StopIteration:
                     break
                 finally:
                     self.busy_s += time.perf_counter() - t0
+                    self.busy_cpu_s += time.thread_time() - c0
                 if not self._put(item):
                     break
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer

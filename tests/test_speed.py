@@ -1,0 +1,123 @@
+"""Speed plumbing: BLAS thread limit, prefetch CPU accounting, CPU figures in the report,
+and ``planar-vo bench run`` on a short log."""
+import argparse
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from planar_vo.pipeline import _loaded_openblas, blas_threads
+from planar_vo.prefetch import Prefetcher
+
+
+def test_blas_threads_limits_and_restores():
+    libs = _loaded_openblas()
+    if not libs:
+        pytest.skip("no OpenBLAS found in this process (not Linux, or numpy without OpenBLAS)")
+    before = [get() for _, get in libs]
+    with blas_threads(1):
+        assert [get() for _, get in libs] == [1] * len(libs)
+        a = np.arange(12.0).reshape(3, 4)
+        np.testing.assert_allclose(a @ a.T, np.einsum("ij,kj->ik", a, a))
+    assert [get() for _, get in libs] == before
+
+
+def test_blas_threads_restores_after_an_exception():
+    libs = _loaded_openblas()
+    if not libs:
+        pytest.skip("no OpenBLAS found in this process")
+    before = [get() for _, get in libs]
+    with pytest.raises(KeyError):
+        with blas_threads(1):
+            raise KeyError("x")
+    assert [get() for _, get in libs] == before
+
+
+def _burn(seconds):
+    t0 = time.thread_time()
+    x = 0
+    while time.thread_time() - t0 < seconds:
+        x += 1
+    return x
+
+
+def test_prefetcher_counts_producer_cpu_not_waiting():
+    def source():
+        for i in range(3):
+            _burn(0.02)       # CPU work, counted
+            time.sleep(0.05)  # waiting (I/O), not counted as CPU
+            yield i
+
+    with Prefetcher(source(), depth=1) as p:
+        assert list(p) == [0, 1, 2]
+    assert 0.05 <= p.busy_cpu_s < 0.12
+    assert p.busy_s >= p.busy_cpu_s + 0.14
+
+
+def test_prefetcher_reraises_and_stops_early():
+    def source():
+        yield 1
+        raise ValueError("bad frame")
+
+    with Prefetcher(source()) as p:
+        with pytest.raises(ValueError, match="bad frame"):
+            list(p)
+
+    stop = threading.Event()
+
+    def endless():
+        i = 0
+        while not stop.is_set():
+            i += 1
+            yield i
+
+    with Prefetcher(endless(), depth=2) as p:
+        assert next(iter(p)) == 1
+    assert not p._thread.is_alive()  # closed by the context manager
+    stop.set()
+
+
+def test_report_has_cpu_per_stage(lturn_log, tmp_path):
+    from planar_vo.config import load_config
+    from planar_vo.pipeline import run
+
+    cfg = load_config(None, {"output": {"plot": False}, "input": {"stop": 12}})
+    res = run(lturn_log, tmp_path / "run", cfg, progress=False)
+    assert res.report["frames"]["with_pose"] == 12
+    cpu = res.report["cpu_ms_per_frame"]
+    for k in ("summary", "read_decode_background", "frontend", "backend", "optimize", "write", "process"):
+        assert cpu[k] >= 0.0, k
+    assert cpu["frontend"] > 0.5 and cpu["read_decode_background"] > 0.5  # 960x540 frames take ms
+    # The process total covers the main thread's stages and the reader's.
+    parts = sum(cpu[k] for k in ("summary", "read_decode_background", "frontend", "backend", "optimize", "write"))
+    assert cpu["process"] >= 0.9 * parts
+
+
+def test_bench_run_prints_figures(lturn_log, tmp_path, capsys):
+    import json
+
+    from planar_vo.bench import run as bench
+
+    p = argparse.ArgumentParser()
+    bench.add_arguments(p)
+    args = p.parse_args([str(lturn_log), "--frames", "12", "--repeat", "1", "--json", str(tmp_path / "b.json")])
+    assert bench.main(args) == 0
+    out = capsys.readouterr().out
+    assert "frames/s median" in out and "peak RSS" in out and "front-end (main thread)" in out
+    data = json.loads((tmp_path / "b.json").read_text())
+    (log,) = data["logs"]
+    assert log["frames"] == 12 and len(log["runs"]) == 1
+    run0 = log["runs"][0]
+    assert run0["fps"] > 0 and 50 < run0["peak_rss_mb"] < 4000
+    assert run0["cpu_ms_per_frame"]["frontend.planes"] > 0
+
+
+def test_bench_run_rejects_a_missing_log(tmp_path):
+    from planar_vo.bench import run as bench
+    from planar_vo.errors import InputError
+
+    p = argparse.ArgumentParser()
+    bench.add_arguments(p)
+    with pytest.raises(InputError, match="no such log"):
+        bench.main(p.parse_args([str(tmp_path / "nope.mcap")]))
