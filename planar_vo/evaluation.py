@@ -37,19 +37,35 @@ def load_ground_truth(path: str | Path):
     return read_tum_trajectory(p)
 
 
+def ground_truth_for_log(log_path: str | Path, log=None):
+    """``(Trajectory, source)`` carried by a log (``/ground_truth``) or in ``LOG.gt.tum`` beside
+    it, else ``(None, None)``. ``log``: the already open RGBDLog, if any."""
+    from planar_vo.io import open_log
+    from planar_vo.io.trajectory import read_tum_trajectory
+
+    log_path = Path(log_path)
+    try:
+        if log is None and log_path.exists():
+            with open_log(log_path) as opened:
+                gt = opened.ground_truth
+        else:
+            gt = log.ground_truth if log is not None else None
+    except InputError:
+        gt = None
+    if gt is not None and len(gt):
+        return gt, f"{log_path} (/ground_truth)"
+    beside = log_path.with_suffix(".gt.tum")
+    if beside.exists():
+        return read_tum_trajectory(beside), str(beside)
+    return None, None
+
+
 def find_ground_truth(run_dir: Path):
     """Ground truth for a run without ``--gt``: carried in its log, or ``LOG.gt.tum`` beside it."""
-    report = run_dir / "report.json"
+    report = Path(run_dir) / "report.json"
     if not report.exists():
         return None
-    log = Path(json.loads(report.read_text()).get("log", ""))
-    for cand in (log.with_suffix(".gt.tum"), log):
-        if cand.exists():
-            try:
-                return load_ground_truth(cand)
-            except InputError:
-                continue
-    return None
+    return ground_truth_for_log(json.loads(report.read_text()).get("log", ""))[0]
 
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:

@@ -61,29 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _ground_truth(log_path: Path, log, gt_arg: str | None):
     """Trajectory or None: ``--gt`` > the log's /ground_truth > ``LOG.gt.tum``; and where from."""
-    from planar_vo.io.trajectory import read_tum_trajectory
+    from planar_vo.evaluation import ground_truth_for_log, load_ground_truth
 
     if gt_arg is not None:
-        p = Path(gt_arg)
-        if not p.exists():
-            raise InputError(f"{p}: ground-truth file not found; pass a TUM trajectory or an MCAP "
-                             "with /ground_truth to --gt")
-        if p.suffix == ".mcap" or p.is_dir():
-            from planar_vo.io import open_log
-
-            with open_log(p) as g:
-                gt = g.ground_truth
-            if gt is None or len(gt) == 0:
-                raise InputError(f"{p}: carries no ground truth (/ground_truth); pass a TUM file with --gt")
-            return gt, str(p)
-        return read_tum_trajectory(p), str(p)
-    gt = log.ground_truth
-    if gt is not None and len(gt):
-        return gt, f"{log_path} (/ground_truth)"
-    beside = log_path.with_suffix(".gt.tum")
-    if beside.exists():
-        return read_tum_trajectory(beside), str(beside)
-    return None, None
+        return load_ground_truth(gt_arg), str(gt_arg)
+    return ground_truth_for_log(log_path, log)
 
 
 def _errors(stamps, poses, gt) -> dict:
