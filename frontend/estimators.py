@@ -19,6 +19,24 @@ With ``t = (tx, 0, tz)`` and ``R = R_y(yaw)`` the essential matrix is
 
 and the depths triangulated in the horizontal plane have the signs of ``-(a x2 + d) / D``
 (view 1) and ``(b x1 + c) / D`` (view 2), ``D = cos (x1 - x2) + sin (1 + x1 x2)``.
+
+Levelling error. The levelled frames come from a mount calibration (or a floor fit) that
+is never exact. A levelling error ``T = R_x(pitch) R_z(roll)`` shared by both views (a
+miscalibrated mount) leaves the motion planar but tilts its plane: the images obey
+``E' = T [t]x R_y T^T``, not ``[t]x R_y``. The misfit is worst for sideways motion under a
+roll error -- the epipolar lines are horizontal and the error moves points vertically,
+across them: translation ``T t`` gains a vertical part ``|t| roll`` and a yaw ``theta``
+turns about an axis tilted by ``roll``, a vertical shift of ``~ theta roll`` (4.6 px at
+15 deg yaw, 1 deg roll, f = 1000 px), both out of reach of any planar ``E``. Then no planar
+model has inliers at a 1.5 px threshold, the consensus set shrinks to a structured
+subset (e.g. the far floor) and its planar fit is off by many degrees. So after the
+planar refinement the estimator also fits ``(yaw, t, pitch, roll)`` to the same images
+(Sampson error of ``E'``, a weak Gaussian prior on the two tilt angles, inliers
+re-selected at 4, 2, then 1 x the threshold as in LO-RANSAC so it can leave a subset-bound
+start) and keeps it only when its MSAC score beats the planar one by more than a BIC
+penalty for two parameters: with a well-levelled camera the planar result is returned
+unchanged. The reported ``yaw``, ``t`` are those of the corrected (truly levelled) frame,
+the correction is in ``info.extra["levelling_error"]``.
 """
 from __future__ import annotations
 
@@ -29,7 +47,7 @@ import numpy as np
 
 from planar_vo.errors import ConfigError
 from planar_vo.frontend.solvers import PlanarMotion, homography_2pt_batch
-from planar_vo.geometry import wrap_angle
+from planar_vo.geometry import rot_x, rot_z, wrap_angle
 
 __all__ = [
     "TwoPointOptions",
@@ -56,7 +74,7 @@ def _check_options(opt) -> None:
     name = type(opt).__name__
     if not 0.0 < opt.confidence < 1.0:
         raise ConfigError(f"{name}.confidence must be in (0, 1), got {opt.confidence}")
-    for f in ("max_error_px", "focal_px", "pixel_sigma", "chi2", "depth_chi2"):
+    for f in ("max_error_px", "focal_px", "pixel_sigma", "chi2", "depth_chi2", "levelling_sigma_deg"):
         v = getattr(opt, f, None)
         if v is not None and not v > 0:
             raise ConfigError(f"{name}.{f} must be > 0, got {v}")
@@ -76,7 +94,10 @@ class TwoPointOptions:
     ``max_error_px / focal_px``. ``focal_px`` defaults to a Kinect-like 525 px: set it from
     the camera intrinsics. RANSAC stops once ``confidence`` is reached (adaptive,
     between ``min_iterations`` and ``max_iterations`` samples, drawn ``batch_size`` at a
-    time and solved together). ``seed`` seeds the sampler.
+    time and solved together). ``seed`` seeds the sampler. ``refine_levelling``: also try
+    a model with a levelling error shared by both views (prior standard deviation
+    ``levelling_sigma_deg`` per tilt angle) and keep it when the data ask for it (see the
+    module docstring); needs ``refine``.
     """
 
     max_error_px: float = 1.0
@@ -89,6 +110,8 @@ class TwoPointOptions:
     min_inliers: int = 6
     refine: bool = True
     max_refine_iterations: int = 15
+    refine_levelling: bool = True
+    levelling_sigma_deg: float = 2.0
     seed: int = 0
 
     def __post_init__(self):
@@ -106,9 +129,11 @@ class MetricTwoPointOptions(TwoPointOptions):
     Depth noise model (per view): ``sigma(Z) = depth_sigma_const + depth_sigma_quad * Z^2``
     metres (structured-light / stereo sensors); image noise ``pixel_sigma`` pixels at
     ``focal_px``. A 3-D match supports the scale when its horizontal residual is within
-    ``depth_chi2`` (chi-square, 2 dof) of that model.
+    ``depth_chi2`` (chi-square, 2 dof) of that model. ``refine_levelling`` is off by default
+    here: the depth residuals would need the same correction (see the module docstring).
     """
 
+    refine_levelling: bool = False
     depth_sigma_const: float = 0.002
     depth_sigma_quad: float = 0.002
     pixel_sigma: float = 0.5
@@ -148,7 +173,10 @@ class EstimateInfo:
     residuals over the inliers (Sampson, normalised units^2, for the 2-point estimator;
     whitened for the others). ``covariance``: (3, 3) over (yaw, t_x, t_z) where provided.
     ``refine_iterations``: Gauss-Newton/LM steps taken. ``scale_inliers``: (N,) bool, 3-D
-    matches that fixed the metric scale (metric estimator).
+    matches that fixed the metric scale (metric estimator). ``extra``:
+    ``"rotation_only_median_error"`` (2-point estimators; normalised units) and, when the
+    levelling-error model won, ``"levelling_error"`` ``(pitch, roll)`` radians, the
+    estimated shared levelling error ``T = R_x(pitch) R_z(roll)`` with ``x_seen ~ T X``.
     """
 
     inliers: np.ndarray
@@ -241,17 +269,26 @@ def _score(m: _Matches, c, s, tx, tz, thr2: float, parallax_tol: float):
     v = a[:, None] * m.X2 + d[:, None]                               # (E^T x2)_2, ~ -Z1 sign * D
     g = (a * a)[:, None] * m.Y1sq + (b * b)[:, None] * m.Y2sq + u * u + v * v
     e2 = r * r / np.maximum(g, 1e-300)
+    fp, fn = _front_masks(m, c, s, u, v, parallax_tol)
+    return _msac(e2, fp, fn, thr2)
+
+
+def _front_masks(m: _Matches, c, s, u, v, parallax_tol: float):
+    """Chirality (H, N) masks: the point is in front of both cameras for ``+t`` / for ``-t``
+    (``u``, ``v`` as in :func:`_score`); points with too little parallax pass both."""
     D = np.stack([c, s], axis=1) @ m.G
-    inl = e2 < thr2
     uD, vD = u * D, v * D
-    low = np.abs(D) < parallax_tol                                   # too little parallax to tell
-    front_pos = inl & (((uD > 0) & (vD < 0)) | low)
-    front_neg = inl & (((uD < 0) & (vD > 0)) | low)
-    npos, nneg = front_pos.sum(1), front_neg.sum(1)
-    sign = np.where(npos >= nneg, 1.0, -1.0)
-    ok = np.where((sign > 0)[:, None], front_pos, front_neg)
-    score = np.where(ok, e2, thr2).sum(1)
-    return score, sign, ok
+    low = np.abs(D) < parallax_tol
+    return ((uD > 0) & (vD < 0)) | low, ((uD < 0) & (vD > 0)) | low
+
+
+def _msac(e2, front_pos, front_neg, thr2: float):
+    """MSAC score (H,), sign of ``t`` (H,) and inlier mask (H, N) from squared errors (H, N)."""
+    inl = e2 < thr2
+    front_pos, front_neg = inl & front_pos, inl & front_neg
+    sign = np.where(front_pos.sum(-1) >= front_neg.sum(-1), 1.0, -1.0)
+    ok = np.where((sign > 0)[..., None], front_pos, front_neg)
+    return np.where(ok, e2, thr2).sum(-1), sign, ok
 
 
 def _sampson_residuals_2(m: _Matches, theta: float, alpha: float, jac: bool):
@@ -306,6 +343,126 @@ def _levenberg_marquardt(fun, p0: np.ndarray, max_iter: int):
         if not improved or rel < 1e-12 or np.abs(step).max() < 1e-12:
             break
     return p, cost, it, J
+
+
+# ------------------------------------------------------------- shared levelling error
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+_EX, _EZ = _skew((1.0, 0.0, 0.0)), _skew((0.0, 0.0, 1.0))
+
+
+def levelling_tilt(pitch: float, roll: float) -> np.ndarray:
+    """(3, 3) levelling error ``T = R_x(pitch) R_z(roll)``: a point ``X`` of the true levelled
+    frame is seen at ``T X`` (the convention of :func:`~planar_vo.frontend.solvers.make_planar_problem`)."""
+    return rot_x(pitch) @ rot_z(roll)
+
+
+def _tilted_essential(p: np.ndarray):
+    """``E' = T [t]x R_y(yaw) T^T`` (3, 3) and ``dE'/dp`` (4, 3, 3), ``p = (yaw, alpha, pitch, roll)``,
+    ``t = (sin alpha, 0, cos alpha)``."""
+    th, al, pitch, roll = (float(v) for v in p)
+    c, s = math.cos(th), math.sin(th)
+    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    dRy = np.array([[-s, 0.0, c], [0.0, 0.0, 0.0], [-c, 0.0, -s]])
+    tx = _skew((math.sin(al), 0.0, math.cos(al)))
+    E0 = tx @ Ry
+    Rx, Rz = rot_x(pitch), rot_z(roll)
+    T = Rx @ Rz
+    dTp, dTr = _EX @ T, Rx @ _EZ @ Rz
+    E0Tt, TE0 = E0 @ T.T, T @ E0
+    D = np.stack([T @ (tx @ dRy) @ T.T,
+                  T @ (_skew((math.cos(al), 0.0, -math.sin(al))) @ Ry) @ T.T,
+                  dTp @ E0Tt + TE0 @ dTp.T,
+                  dTr @ E0Tt + TE0 @ dTr.T])
+    return TE0 @ T.T, D
+
+
+def _sampson_tilted(x1h: np.ndarray, x2h: np.ndarray, p: np.ndarray, w_prior: float, jac: bool):
+    """Sampson residuals of ``E'`` (M,) on homogeneous points ``x1h``, ``x2h`` (3, M), then the
+    prior's two residuals ``w_prior * (pitch, roll)``; Jacobian (M + 2, 4) over ``p``."""
+    E, D = _tilted_essential(p)
+    l1, l2 = E @ x1h, E.T @ x2h
+    r = np.einsum("in,in->n", x2h, l1)
+    sg = np.sqrt(np.maximum(l1[0] ** 2 + l1[1] ** 2 + l2[0] ** 2 + l2[1] ** 2, 1e-300))
+    e = np.concatenate([r / sg, w_prior * np.asarray(p[2:4], dtype=float)])
+    if not jac:
+        return e, None
+    m = x1h.shape[1]
+    dl1 = D @ x1h                                                     # (4, 3, M)
+    dl2 = np.transpose(D, (0, 2, 1)) @ x2h
+    dr = np.einsum("in,kin->kn", x2h, dl1)
+    dg = 2.0 * (l1[0] * dl1[:, 0] + l1[1] * dl1[:, 1] + l2[0] * dl2[:, 0] + l2[1] * dl2[:, 1])
+    J = np.zeros((m + 2, 4))
+    J[:m] = ((dr - 0.5 * e[:m] * dg / sg) / sg).T
+    J[m, 2] = J[m + 1, 3] = w_prior
+    return e, J
+
+
+def _untilt(x: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(N, 2) normalised coordinates seen through the levelling error ``T`` mapped to the true
+    levelled frame (``x ~ T^T x_seen``)."""
+    xh = np.column_stack([x, np.ones(len(x))]) @ T                  # rows: (T^T x)^T
+    return xh[:, :2] / xh[:, 2:3]
+
+
+def _tilted_errors(x1, x2, x1h, x2h, p, parallax_tol: float):
+    """Squared Sampson errors (N,) of ``E'`` in the images as seen, and the chirality masks
+    (N,) for ``+t`` / ``-t`` in the corrected frame, of one levelling-error hypothesis ``p``."""
+    E, _ = _tilted_essential(p)
+    l1, l2 = E @ x1h, E.T @ x2h
+    r = np.einsum("in,in->n", x2h, l1)
+    e2 = r * r / np.maximum(l1[0] ** 2 + l1[1] ** 2 + l2[0] ** 2 + l2[1] ** 2, 1e-300)
+    T = levelling_tilt(p[2], p[3])
+    X1, X2 = _untilt(x1, T)[:, 0], _untilt(x2, T)[:, 0]
+    c, s = math.cos(p[0]), math.sin(p[0])
+    a, b, cc, d = _coeffs(c, s, math.sin(p[1]), math.cos(p[1]))
+    D = c * (X1 - X2) + s * (1.0 + X1 * X2)                          # as in _front_masks
+    uD, vD = (b * X1 + cc) * D, (a * X2 + d) * D
+    low = np.abs(D) < parallax_tol
+    return e2, ((uD > 0) & (vD < 0)) | low, ((uD < 0) & (vD > 0)) | low
+
+
+#: LO-RANSAC style schedule of the levelling refinement: inlier threshold multipliers.
+_LEVELLING_SCHEDULE = (4.0, 2.0, 1.0, 1.0, 1.0)
+
+
+def _refine_levelling(x1, x2, theta: float, alpha: float, thr: float, planar_score: float,
+                      opt: TwoPointOptions):
+    """Fit ``(yaw, alpha, pitch, roll)`` from a planar start; see the module docstring.
+
+    Stops as soon as a round does not beat ``planar_score`` (MSAC at ``thr``): a level
+    camera costs one round. Returns ``(p (4,), msac score, inliers (N,) bool, LM iterations)``.
+    """
+    x1h = np.vstack([x1.T, np.ones(len(x1))])
+    x2h = np.vstack([x2.T, np.ones(len(x2))])
+    thr2, par_tol = thr * thr, 2.0 * thr
+    # prior sd in normalised image units: the threshold is ~3 sigma of the image noise
+    w_prior = (thr / 3.0) / math.radians(opt.levelling_sigma_deg)
+    p = np.array([theta, alpha, 0.0, 0.0])
+    e2, fp, fn = _tilted_errors(x1, x2, x1h, x2h, p, par_tol)   # fp, fn always match p
+    prev, its_total = None, 0
+    for k in _LEVELLING_SCHEDULE:
+        _, sign, sel = _msac(e2, fp, fn, k * k * thr2)
+        if sign < 0:
+            p[1] += math.pi
+            fp, fn = fn, fp
+        if sel.sum() < max(opt.min_inliers, 4) or (k == 1.0 and np.array_equal(sel, prev)):
+            break
+        prev = sel
+        a1, a2 = x1h[:, sel], x2h[:, sel]
+        fun = lambda q, jac: _sampson_tilted(a1, a2, q, w_prior, jac)  # noqa: E731
+        p, _cost, its, _J = _levenberg_marquardt(fun, p, opt.max_refine_iterations)
+        its_total += its
+        e2, fp, fn = _tilted_errors(x1, x2, x1h, x2h, p, par_tol)
+        if _msac(e2, fp, fn, thr2)[0] >= planar_score:
+            break
+    score, sign, inl = _msac(e2, fp, fn, thr2)
+    if sign < 0:
+        p[1] += math.pi
+    return p, float(score), inl, its_total
 
 
 # ------------------------------------------------------------------- 2-point RANSAC core
@@ -369,6 +526,7 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
     theta, alpha = best_yaw, math.atan2(best_t[0], best_t[1])
     inl = best_ok
     refine_iters = 0
+    tilt = None  # (pitch, roll) of the levelling-error model when it wins
     if opt.refine:
         rounds = 3  # refine, re-select inliers, refine again while they change
         for rnd in range(rounds):
@@ -387,19 +545,39 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
             if np.array_equal(new, inl) or new.sum() < max(opt.min_inliers, 2):
                 break
             inl = new
+        if opt.refine_levelling:
+            planar_score = float(_score(m, np.array([math.cos(theta)]), np.array([math.sin(theta)]),
+                                        np.array([math.sin(alpha)]), np.array([math.cos(alpha)]),
+                                        thr2, par_tol)[0][0])
+            p, lev_score, lev_inl, its = _refine_levelling(x1, x2, theta, alpha, thr, planar_score, opt)
+            refine_iters += its
+            # BIC penalty of the two tilt angles, image noise sigma ~ thr / 3
+            if lev_score + 2.0 * math.log(N) * thr2 / 9.0 < planar_score and lev_inl.sum() >= max(opt.min_inliers, 2):
+                theta, alpha, inl = float(p[0]), float(p[1]), lev_inl
+                tilt = (float(p[2]), float(p[3]))
     t_dir = np.array([math.sin(alpha), 0.0, math.cos(alpha)])
     theta = float(wrap_angle(theta))
-    e = sampson_errors(theta, t_dir, x1[inl], x2[inl])
+    if tilt is None:
+        e = sampson_errors(theta, t_dir, x1[inl], x2[inl])
+        u1, u2 = x1[inl], x2[inl]
+    else:
+        info.extra["levelling_error"] = tilt
+        e, _ = _sampson_tilted(np.vstack([x1[inl].T, np.ones(inl.sum())]),
+                               np.vstack([x2[inl].T, np.ones(inl.sum())]),
+                               np.array([theta, alpha, *tilt]), 0.0, False)
+        e = e[:-2]
+        T = levelling_tilt(*tilt)
+        u1, u2 = _untilt(x1[inl], T), _untilt(x2[inl], T)
     info.inliers = inl
     info.num_inliers = int(inl.sum())
     info.cost = float(e @ e)
     info.refine_iterations = refine_iters
-    # pure rotation: x2 ~ R x1 explains the inliers, so t is unobservable
+    # pure rotation: x2 ~ R x1 explains the inliers (in the corrected frame), so t is unobservable
     c, s = math.cos(theta), math.sin(theta)
-    X1, Y1 = x1[inl, 0], x1[inl, 1]
+    X1, Y1 = u1[:, 0], u1[:, 1]
     zr = -s * X1 + c
     with np.errstate(divide="ignore", invalid="ignore"):
-        rot_err = np.nan_to_num(np.hypot((c * X1 + s) / zr - x2[inl, 0], Y1 / zr - x2[inl, 1]), nan=np.inf)
+        rot_err = np.nan_to_num(np.hypot((c * X1 + s) / zr - u2[:, 0], Y1 / zr - u2[:, 1]), nan=np.inf)
     info.extra["rotation_only_median_error"] = float(np.median(rot_err))
     if np.median(rot_err) < thr:
         info.status = PURE_ROTATION

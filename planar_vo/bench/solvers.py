@@ -6,7 +6,9 @@ motion. Sweeps: image noise 0-2 px; pitch and roll levelling error (standard dev
 deg) at 0.5 px, either shared by both views (a miscalibrated mount, the paper's case) or
 independent per view. Every method sees the same data and the same RANSAC threshold
 (``max(1, 3 sigma)`` px, or ``--threshold-px``) and ends with a least-squares fit over its
-inliers, except OpenCV's RANSAC which has no final refit.
+inliers, except OpenCV's RANSAC which has no final refit. The planar methods' fit also tries
+a levelling error shared by both views and keeps it when the data ask for it (see
+:mod:`planar_vo.frontend.estimators`); they still report the planar motion only.
 
 Errors (eq. 18): rotation ``|yaw_g - yaw_e|`` for planar methods; for the 5-point method the
 angle of ``R_g^T R_e`` (it estimates a full 3-D rotation); translation: angle between the
