@@ -126,7 +126,8 @@ def depth_to_mm(depth_m: np.ndarray) -> np.ndarray:
 
 def mm_to_depth(mm: np.ndarray) -> np.ndarray:
     """uint16 millimetres -> float32 metres (0 stays 0)."""
-    return mm.astype(np.float32) / np.float32(1000.0)
+    # One pass, no float32 temporary; the same correctly rounded division.
+    return np.divide(mm, np.float32(1000.0), dtype=np.float32)
 
 
 def sanitize_depth(depth: np.ndarray) -> np.ndarray:

@@ -145,16 +145,71 @@ def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
 
 def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = None, *,
         progress: bool = True, gt_path: str | Path | None = None) -> RunResult:
-    """Run the whole job on one log; see the module docstring for the outputs."""
-    with blas_threads(1):
-        return _run(log_path, out_dir, config, progress=progress, gt_path=gt_path)
+    """Run the whole job on one log; see the module docstring for the outputs.
+
+    Threads: the main thread runs the front-end and back-end, one thread reads and
+    decodes the next frames, one describes the log (its summary, with its own file
+    handle) and loads the output stage's modules. The kernels underneath (OpenCV, BLAS)
+    get one thread each for the run: the parallelism is the pipeline's, and on 2 cores
+    more threads only compete with it (the previous settings are restored afterwards).
+    """
+    import cv2
+
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with blas_threads(1):
+            return _run(log_path, out_dir, config or RunConfig(), progress=progress, gt_path=gt_path)
+    finally:
+        cv2.setNumThreads(cv_threads)
 
 
-def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
+def _describe_and_prepare(log_path, config: RunConfig) -> tuple[dict, float]:
+    """Background work of a run: the log's summary for the report, read through a second
+    handle while the main one streams frames, then the imports of the output stage
+    (matplotlib alone takes ~0.5 s), so that none of it waits at either end of the run.
+    Returns the summary (JSON-able) and the CPU seconds this took."""
+    c0 = time.thread_time()
+    summary: dict = {}
+    try:
+        with open_input(log_path, config) as log:
+            summary = _safe_summary(log)
+    except Exception:  # noqa: BLE001 - the main pass reports any problem with the log
+        pass
+    try:
+        if config.output.poses_mcap:
+            import foxglove_schemas_protobuf.FrameTransforms_pb2  # noqa: F401
+            import foxglove_schemas_protobuf.PoseInFrame_pb2  # noqa: F401
+            import foxglove_schemas_protobuf.PosesInFrame_pb2  # noqa: F401
+            import mcap_protobuf.writer  # noqa: F401
+
+            import planar_vo.io.trajectory  # noqa: F401
+        if config.output.plot:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401
+
+            import planar_vo.plotting  # noqa: F401
+    except Exception:  # noqa: BLE001 - only a head start; the output stage imports them itself
+        pass
+    return summary, time.thread_time() - c0
+
+
+def _total_frames(summary: dict, c) -> int | None:
+    """Frames the run will process, from the log summary (for the progress bar)."""
+    if summary.get("frames") is None:
+        return None
+    stop = summary["frames"] if c.stop is None else min(c.stop, summary["frames"])
+    return max(0, math.ceil((stop - c.start) / c.stride))
+
+
+def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResult:
+    from concurrent.futures import ThreadPoolExecutor
+
     from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
     from planar_vo.frontend.odometry import PlanarOdometry
 
-    config = config or RunConfig()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -162,21 +217,16 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
     timings = Counter()
     cpu = Counter()  # CPU seconds per stage (thread time), comparable on a loaded machine
 
+    side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-summary")
+    described = side.submit(_describe_and_prepare, log_path, config)
+    side.shutdown(wait=False)
     with open_input(log_path, config) as log:
         intr = log.intrinsics
         mount = resolve_mount(log.mount, config)
         odo = PlanarOdometry(intr, mount, config.frontend)
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
         c = config.input
-        # One scan of the log describes it for the report and sizes the progress bar.
-        c0 = time.thread_time()
-        log_summary = _safe_summary(log)
-        cpu["summary"] += time.thread_time() - c0
-        total = None
-        if log_summary.get("frames") is not None:
-            stop = log_summary["frames"] if c.stop is None else min(c.stop, log_summary["frames"])
-            total = max(0, math.ceil((stop - c.start) / c.stride))
-        bar = Progress(total, enabled=progress)
+        bar = Progress(None, enabled=progress)  # the total comes with the summary
         stamps: list[float] = []
         statuses = Counter()
         frame_infos = []
@@ -202,6 +252,8 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
                     stamps.append(frame.stamp)
                     statuses[result.step.status if result.step is not None else "first"] += 1
                     frame_infos.append(_frame_summary(result))
+                    if bar.total is None and described.done():
+                        bar.total = _total_frames(described.result()[0], c)
                     bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         except KeyboardInterrupt:
             partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
@@ -209,6 +261,9 @@ def _run(log_path, out_dir, config, *, progress, gt_path) -> RunResult:
             partial, stop_reason = True, str(exc)
         timings["read_decode_background"] += reader.busy_s
         cpu["read_decode_background"] += reader.busy_cpu_s
+        t0 = time.perf_counter()
+        log_summary, cpu["summary_background"] = described.result()
+        timings["summary_wait"] += time.perf_counter() - t0
         bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         stats = dict(log.stats)
         gt = log.ground_truth
