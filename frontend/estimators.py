@@ -58,6 +58,7 @@ __all__ = [
     "estimate_planar_motion_2pt_metric",
     "estimate_planar_motion_dpp",
     "estimate_planar_motion_with_solver",
+    "levelling_tilt",
     "sampson_errors",
 ]
 
@@ -130,7 +131,8 @@ class MetricTwoPointOptions(TwoPointOptions):
     metres (structured-light / stereo sensors); image noise ``pixel_sigma`` pixels at
     ``focal_px``. A 3-D match supports the scale when its horizontal residual is within
     ``depth_chi2`` (chi-square, 2 dof) of that model. ``refine_levelling`` is off by default
-    here: the depth residuals would need the same correction (see the module docstring).
+    here (the front-end's odometry keeps its planar behaviour); when on and the levelling-error
+    model wins, images and depths are corrected alike before the metric refinement.
     """
 
     refine_levelling: bool = False
@@ -691,7 +693,9 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     depth is invalid. Returns ``(motion, info)``: ``motion.t`` metric (metres), ``X2 = R X1 +
     t``; ``info.inliers`` (N,) bool (epipolar inliers), ``info.scale_inliers`` (N,) bool,
     ``info.covariance`` (3, 3) over (yaw, t_x, t_z) from the whitened inlier residuals.
-    ``motion`` is None when the 2-point stage fails or no inlier has valid depth.
+    ``motion`` is None when the 2-point stage fails or no inlier has valid depth. With
+    ``options.refine_levelling`` and a shared levelling error found, the scale and the joint
+    refinement work in the corrected frame (images and 3-D points rotated by ``T^T``).
     """
     opt = options or MetricTwoPointOptions()
     x1 = _as_points("x1", x1, 2)
@@ -704,6 +708,10 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     theta, t_dir, info = _ransac_2pt(x1, x2, opt)
     if theta is None:
         return None, info
+    if "levelling_error" in info.extra:
+        # the levelling-error model won: fix scale and refine in the corrected frame
+        T = levelling_tilt(*info.extra["levelling_error"])
+        x1, x2, P1, P2 = _untilt(x1, T), _untilt(x2, T), P1 @ T, P2 @ T
     inl = info.inliers
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
