@@ -128,6 +128,8 @@ class PlanarOdometry:
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
         self.last_detection: PlaneDetection | None = None
+        # frame index -> (features, matches, new corners, seconds) of track() calls made ahead
+        self._tracked: dict[int, tuple] = {}
 
     # ------------------------------------------------------------------ state
     @property
@@ -161,12 +163,18 @@ class PlanarOdometry:
         t2 = clock()
         timings["manhattan"] = t2 - t1
 
-        gray = cv2.cvtColor(color, cv2.COLOR_BGR2GRAY) if color.ndim == 3 else color
-        fs, matches = self._features.process(gray, depth)
+        tracked = self._tracked.pop(frame.index, None)
+        if tracked is None:
+            if self._tracked:
+                raise RuntimeError(f"frame {frame.index}: track() ran ahead for frames "
+                                   f"{sorted(self._tracked)} but not for this one; call it for every frame, in order")
+            tracked = self._track(color, depth)
+        fs, matches, new_corners, t_track = tracked
+        t_lev = clock()
         x_lev, P_lev = levelled_features(fs, R)
         t3 = clock()
-        timings["features"] = t3 - t2
-        info.update(features=len(fs), new_corners=self._features.last_detected, matches=len(matches))
+        timings["features"] = t_track + (t3 - t_lev)
+        info.update(features=len(fs), new_corners=new_corners, matches=len(matches))
 
         step = None
         lev_motion = (0.0, np.zeros(3))
@@ -185,7 +193,26 @@ class PlanarOdometry:
         self._n += 1
         return FrameResult(frame.index, frame.stamp, step, observations, timings, info)
 
+    def track(self, frame: RGBDFrame) -> None:
+        """Run the feature stage of :meth:`process` for ``frame`` now, ahead of it.
+
+        Corner tracking depends on the images alone, not on planes or levelling, so a
+        pipeline may run it as soon as a frame is decoded, in another thread (OpenCV
+        releases the GIL), while :meth:`process` works on an earlier frame. Call it for
+        every frame, in order, before :meth:`process` of that frame, which then uses the
+        stored result: the output is the same as without it.
+        """
+        color, depth = self._check(frame)
+        self._tracked[frame.index] = self._track(color, depth)
+
     # ------------------------------------------------------------------ stages
+    def _track(self, color, depth) -> tuple:
+        """``(FeatureSet, matches, corners detected, clock seconds)`` of the next frame."""
+        t0 = self.clock()
+        gray = cv2.cvtColor(color, cv2.COLOR_BGR2GRAY) if color.ndim == 3 else color
+        fs, matches = self._features.process(gray, depth)
+        return fs, matches, self._features.last_detected, self.clock() - t0
+
     def _check(self, frame: RGBDFrame):
         K = self.intrinsics
         color, depth = frame.color, frame.depth

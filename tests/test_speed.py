@@ -123,3 +123,47 @@ def test_bench_run_rejects_a_missing_log(tmp_path):
     bench.add_arguments(p)
     with pytest.raises(InputError, match="no such log"):
         bench.main(p.parse_args([str(tmp_path / "nope.mcap")]))
+
+
+@pytest.fixture(scope="module")
+def first_frames(lturn_log):
+    from planar_vo.io import open_log
+
+    with open_log(lturn_log) as log:
+        return log.intrinsics, log.mount, list(log.frames(stop=8))
+
+
+def _results(odo, frames, ahead: bool):
+    out = []
+    for f in frames:
+        if ahead:
+            odo.track(f)
+        r = odo.process(f)
+        out.append((None if r.step is None else (r.step.pose.tolist(), r.step.information.tolist(), r.step.status),
+                    [(m.yaw, m.sigma, m.track_id) for m in r.manhattan], r.info["matches"]))
+    return out
+
+
+def test_tracking_ahead_gives_the_same_steps(first_frames):
+    from planar_vo.frontend.odometry import PlanarOdometry
+
+    intr, mount, frames = first_frames
+    inline = _results(PlanarOdometry(intr, mount), frames, ahead=False)
+    # All frames tracked first (as far ahead as a pipeline could be), then processed.
+    odo = PlanarOdometry(intr, mount)
+    for f in frames:
+        odo.track(f)
+    ahead = [_results(odo, [f], ahead=False)[0] for f in frames]
+    assert ahead == inline
+    assert _results(PlanarOdometry(intr, mount), frames, ahead=True) == inline
+    assert inline[-1][2] > 50  # the frames were really tracked
+
+
+def test_tracking_ahead_out_of_order_is_refused(first_frames):
+    from planar_vo.frontend.odometry import PlanarOdometry
+
+    intr, mount, frames = first_frames
+    odo = PlanarOdometry(intr, mount)
+    odo.track(frames[1])
+    with pytest.raises(RuntimeError, match="track"):
+        odo.process(frames[0])
