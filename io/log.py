@@ -147,6 +147,10 @@ class RGBDLog(ABC):
     def summary(self) -> LogSummary:
         """Scan the log (stamps, a sample of depth images) and describe it."""
 
+    def expected_frames(self) -> int | None:
+        """Colour/depth pairs the log holds at most, when known without reading it."""
+        return None
+
     def close(self) -> None:  # noqa: B027 - optional for sources without open files
         pass
 

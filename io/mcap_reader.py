@@ -50,6 +50,42 @@ class _Stop:
                 f"{_fmt_stamp(self.last_stamp)}")
 
 
+class _ScanFacts:
+    """What summary() needs from a pass over every pair, gathered by ``frames()``.
+
+    ``errors`` mirrors the list summary()'s own scan would build: the message- and
+    chunk-level errors (taken from the pass's list as they appear, skipping the entries
+    only ``frames()`` adds) and the sampled depths that fail to decode, in scan order.
+    """
+
+    def __init__(self, every: int):
+        self.every = every
+        self.first = self.last = None
+        self.fractions: list[float] = []
+        self.errors: list = []
+        self.stats: dict = {}
+        self.stop_at: list = []
+        self._seen = 0
+
+    def take_errors(self, corrupt: list) -> None:
+        self.errors.extend(corrupt[self._seen:])
+        self._seen = len(corrupt)
+
+    def skip_errors(self, n: int) -> None:
+        self._seen += n
+
+    def paired(self, stamp: float) -> None:
+        self.first = stamp if self.first is None else self.first
+        self.last = stamp
+
+    def sampled(self, index: int) -> bool:
+        return index % self.every == 0
+
+    def finish(self, stats: dict, stop_at: list) -> None:
+        self.stats = {k: v for k, v in stats.items() if k != "corrupt"}
+        self.stop_at = list(stop_at)
+
+
 def _ns_to_s(ns: int) -> float:
     return ns * 1e-9
 
@@ -130,6 +166,7 @@ class McapRGBDLog(RGBDLog):
         gt = [t for t in topics_of[m.POSE] if "ground_truth" in t or "groundtruth" in t]
         self._gt_topic = "/ground_truth" if "/ground_truth" in gt else (sorted(gt)[0] if gt else None)
         self._probe_cache = None
+        self._facts: _ScanFacts | None = None  # what the last complete frames() pass saw
         self._intrinsics_cache = None
         self._mount_cache: tuple | None = None
         self._gt_cache: tuple | None = None
@@ -311,7 +348,13 @@ class McapRGBDLog(RGBDLog):
         yielded = 0
         shape_checked = False
         stop_at: list = []
+        # A pass over every frame sees all that summary() would scan for: it records that on
+        # the way (``facts``), and a later summary() uses it instead of reading the log again.
+        facts = _ScanFacts(self._sample_every()) if (start, stop, stride) == (0, None, 1) else None
+        self._facts = None
         for ev in self._pair_events(stats, stop_at):
+            if facts is not None:
+                facts.take_errors(stats["corrupt"])
             if isinstance(ev, Unpaired):
                 stats["unpaired_color" if ev.side == COLOR else "unpaired_depth"] += 1
                 continue
@@ -320,14 +363,23 @@ class McapRGBDLog(RGBDLog):
             if stop is not None and i >= stop:
                 return
             stats["paired"] += 1
+            if facts is not None:
+                facts.paired(ev.color_stamp)
             if i < start or (i - start) % stride:
                 continue
+            depth = None
             try:
                 color = self._decode_color(ev.color)
                 depth = self._decode_depth(ev.depth)
             except DecodeError as exc:
                 stats["corrupt"].append((ev.color_stamp, str(exc)))
+                if facts is not None:
+                    facts.skip_errors(1)
+                    if facts.sampled(i):
+                        self._sample_depth(facts, ev, depth)
                 continue
+            if facts is not None and facts.sampled(i):
+                facts.fractions.append(depth_valid_fraction(depth))
             if color.shape[:2] != depth.shape:
                 msg = (f"colour is {color.shape[1]}x{color.shape[0]} but depth is "
                        f"{depth.shape[1]}x{depth.shape[0]}")
@@ -336,12 +388,36 @@ class McapRGBDLog(RGBDLog):
                                      "depth must be registered to colour (choose e.g. an *_rect "
                                      "pair with --color-topic/--depth-topic)")
                 stats["corrupt"].append((ev.color_stamp, msg))
+                if facts is not None:
+                    facts.skip_errors(1)
                 continue
             shape_checked = True
             yielded += 1
             yield RGBDFrame(i, ev.color_stamp, color, depth, depth_stamp=ev.depth_stamp)
+        if facts is not None:
+            facts.take_errors(stats["corrupt"])
+            facts.finish(stats, stop_at)
+            self._facts = facts
         if stop_at:
             self._raise_cut(stop_at[0], yielded, stats["paired"])
+
+    def _sample_every(self) -> int:
+        """summary() decodes the depth of every n-th paired frame; this n."""
+        expected = min(self._count(self.color_topic), self._count(self.depth_topic))
+        return max(1, expected // DEPTH_SAMPLES)
+
+    def _sample_depth(self, facts: "_ScanFacts", ev: Pair, depth) -> None:
+        """The sampled depth of a frame that failed to decode, as summary() would see it."""
+        try:
+            d = depth if depth is not None else self._decode_depth(ev.depth)
+        except DecodeError as exc:
+            facts.errors.append((ev.color_stamp, str(exc)))
+            return
+        facts.fractions.append(depth_valid_fraction(d))
+
+    def expected_frames(self) -> int:
+        """Colour/depth pairs the log holds at most, from its index (nothing is read)."""
+        return min(self._count(self.color_topic), self._count(self.depth_topic))
 
     def _raise_cut(self, stop: _Stop, yielded: int, paired: int) -> None:
         where = stop.where(self.size)
@@ -459,9 +535,16 @@ class McapRGBDLog(RGBDLog):
                           child_frame_id=child)
 
     def summary(self) -> LogSummary:
+        """Scan the log and describe it; right after a complete ``frames()`` pass (all
+        frames, read to the end) the facts recorded by that pass are used instead."""
+        if self._facts is not None:
+            f = self._facts
+            stats = self.stats = {"paired": f.stats["paired"], "unpaired_color": f.stats["unpaired_color"],
+                                  "unpaired_depth": f.stats["unpaired_depth"], "corrupt": list(f.errors)}
+            fractions, first, last, stop_at = f.fractions, f.first, f.last, f.stop_at
+            return self._describe(stats, fractions, first, last, stop_at)
         stats = self.stats = _empty_stats()
-        expected = min(self._count(self.color_topic), self._count(self.depth_topic))
-        every = max(1, expected // DEPTH_SAMPLES)
+        every = self._sample_every()
         fractions = []
         first = last = None
         index = 0
@@ -479,6 +562,9 @@ class McapRGBDLog(RGBDLog):
                 except DecodeError as exc:
                     stats["corrupt"].append((ev.color_stamp, str(exc)))
             index += 1
+        return self._describe(stats, fractions, first, last, stop_at)
+
+    def _describe(self, stats: dict, fractions: list, first, last, stop_at: list) -> LogSummary:
         (cimg, (h, w)), (dimg, _) = self._probe()
         s = LogSummary(
             path=str(self.path), format=self.format,

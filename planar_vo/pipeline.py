@@ -148,8 +148,9 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
     """Run the whole job on one log; see the module docstring for the outputs.
 
     Threads: the main thread runs the front-end and back-end, one thread reads and
-    decodes the next frames, one describes the log (its summary, with its own file
-    handle) and loads the output stage's modules. The kernels underneath (OpenCV, BLAS)
+    decodes the next frames and tracks their corners, one loads the output stage's
+    modules meanwhile. The log is read once: the summary in the report comes from the
+    same pass (:meth:`RGBDLog.summary` after a complete ``frames()`` pass). The kernels underneath (OpenCV, BLAS)
     get one thread each for the run: the parallelism is the pipeline's, and on 2 cores
     more threads only compete with it (the previous settings are restored afterwards).
     """
@@ -188,18 +189,11 @@ class _TrackAhead:
                 close()
 
 
-def _describe_and_prepare(log_path, config: RunConfig) -> tuple[dict, float]:
-    """Background work of a run: the log's summary for the report, read through a second
-    handle while the main one streams frames, then the imports of the output stage
-    (matplotlib alone takes ~0.5 s), so that none of it waits at either end of the run.
-    Returns the summary (JSON-able) and the CPU seconds this took."""
+def _prepare_outputs(config: RunConfig) -> float:
+    """Import the output stage's modules (matplotlib alone takes ~0.5 s) while the frames
+    are processed, so that the end of the run does not wait for them; returns the CPU
+    seconds this took."""
     c0 = time.thread_time()
-    summary: dict = {}
-    try:
-        with open_input(log_path, config) as log:
-            summary = _safe_summary(log)
-    except Exception:  # noqa: BLE001 - the main pass reports any problem with the log
-        pass
     try:
         if config.output.poses_mcap:
             import foxglove_schemas_protobuf.FrameTransforms_pb2  # noqa: F401
@@ -217,14 +211,14 @@ def _describe_and_prepare(log_path, config: RunConfig) -> tuple[dict, float]:
             import planar_vo.plotting  # noqa: F401
     except Exception:  # noqa: BLE001 - only a head start; the output stage imports them itself
         pass
-    return summary, time.thread_time() - c0
+    return time.thread_time() - c0
 
 
-def _total_frames(summary: dict, c) -> int | None:
-    """Frames the run will process, from the log summary (for the progress bar)."""
-    if summary.get("frames") is None:
+def _total_frames(n_log: int | None, c) -> int | None:
+    """Frames the run will process of a log of ``n_log`` pairs (for the progress bar)."""
+    if n_log is None:
         return None
-    stop = summary["frames"] if c.stop is None else min(c.stop, summary["frames"])
+    stop = n_log if c.stop is None else min(c.stop, n_log)
     return max(0, math.ceil((stop - c.start) / c.stride))
 
 
@@ -241,8 +235,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     timings = Counter()
     cpu = Counter()  # CPU seconds per stage (thread time), comparable on a loaded machine
 
-    side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-summary")
-    described = side.submit(_describe_and_prepare, log_path, config)
+    side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-outputs")
+    prepared = side.submit(_prepare_outputs, config)
     side.shutdown(wait=False)
     with open_input(log_path, config) as log:
         intr = log.intrinsics
@@ -250,7 +244,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         odo = PlanarOdometry(intr, mount, config.frontend)
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
         c = config.input
-        bar = Progress(None, enabled=progress)  # the total comes with the summary
+        bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
         stamps: list[float] = []
         statuses = Counter()
         frame_infos = []
@@ -279,8 +273,6 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                     stamps.append(frame.stamp)
                     statuses[result.step.status if result.step is not None else "first"] += 1
                     frame_infos.append(_frame_summary(result))
-                    if bar.total is None and described.done():
-                        bar.total = _total_frames(described.result()[0], c)
                     bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         except KeyboardInterrupt:
             partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
@@ -290,11 +282,13 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
         timings["track_background"] += ahead.wall_s
         cpu["track_background"] += ahead.cpu_s
-        t0 = time.perf_counter()
-        log_summary, cpu["summary_background"] = described.result()
-        timings["summary_wait"] += time.perf_counter() - t0
         bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         stats = dict(log.stats)
+        # After a pass over the whole log this reads nothing: the pass recorded what it needs.
+        t0, c0 = time.perf_counter(), time.thread_time()
+        log_summary = _safe_summary(log)
+        timings["summary"] += time.perf_counter() - t0
+        cpu["summary"] += time.thread_time() - c0
         gt = log.ground_truth
 
     if not stamps:
@@ -313,6 +307,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         gt = read_tum_trajectory(gt_path)
 
     T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
+    cpu["outputs_import_background"] = prepared.result()
     t0, c0 = time.perf_counter(), time.thread_time()
     files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
     timings["write"] += time.perf_counter() - t0

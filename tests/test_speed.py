@@ -86,13 +86,14 @@ def test_report_has_cpu_per_stage(lturn_log, tmp_path):
     res = run(lturn_log, tmp_path / "run", cfg, progress=False)
     assert res.report["frames"]["with_pose"] == 12
     cpu = res.report["cpu_ms_per_frame"]
-    for k in ("summary_background", "read_decode_background", "frontend", "backend", "optimize", "write",
-              "process"):
+    for k in ("summary", "outputs_import_background", "read_decode_background", "track_background",
+              "frontend", "backend", "optimize", "write", "process"):
         assert cpu[k] >= 0.0, k
     assert cpu["frontend"] > 0.5 and cpu["read_decode_background"] > 0.5  # 960x540 frames take ms
-    # The process total covers the main thread's stages and the reader's.
-    parts = sum(cpu[k] for k in ("summary_background", "read_decode_background", "frontend", "backend", "optimize",
-                                  "write"))
+    assert cpu["track_background"] > 0.3
+    # The process total covers the stages of every thread.
+    parts = sum(cpu[k] for k in ("summary", "outputs_import_background", "read_decode_background",
+                                 "track_background", "frontend", "backend", "optimize", "write"))
     assert cpu["process"] >= 0.9 * parts
 
 

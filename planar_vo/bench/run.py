@@ -2,9 +2,9 @@
 
 ``planar-vo bench run LOG [LOG ...] [--frames N] [--repeat N] [--config YAML] [--online] [--json PATH]``
 
-Each run is the whole job of ``planar-vo run`` (:func:`planar_vo.pipeline.run`: the
-summary scan, MCAP reading and decoding in the prefetch thread, front-end, back-end,
-optimisation and every output file) in a fresh Python process, so that its peak RSS is
+Each run is the whole job of ``planar-vo run`` (:func:`planar_vo.pipeline.run`: MCAP
+reading, decoding and corner tracking in the reader thread, front-end, back-end,
+optimisation, the log summary and every output file) in a fresh Python process, so that its peak RSS is
 its own. Printed per log and run: frames per second end to end (wall clock, the figure
 ``planar-vo run`` prints), the process's CPU milliseconds per frame (all threads) and
 the peak RSS; then the median over the runs of the CPU milliseconds per frame of every
@@ -26,7 +26,7 @@ TARGET_FPS = 30.0
 _CHILD_FLAG = "--_child"
 
 #: Stages of report.json ``cpu_ms_per_frame`` in print order, with their labels.
-STAGES = (("summary_background", "summary + output imports (side thread)"),
+STAGES = (("outputs_import_background", "output-stage imports (side thread)"),
           ("read_decode_background", "read + decode (reader thread)"),
           ("track_background", "corner tracking (reader thread)"),
           ("frontend", "front-end (main thread)"),
@@ -35,6 +35,7 @@ STAGES = (("summary_background", "summary + output imports (side thread)"),
           ("frontend.features", "  features (tracking: reader thread)"),
           ("frontend.estimate", "  estimate"),
           ("backend", "back-end add_frame"),
+          ("summary", "log summary for the report (once)"),
           ("optimize", "optimize (once)"),
           ("write", "write outputs (once)"),
           ("process", "whole process, all threads"))
@@ -137,9 +138,9 @@ def format_log(res: dict) -> str:
         if cpu.get(key) is not None:
             lines.append(f"    {label:<36}{cpu[key]:>8.2f}")
     # The threads overlap: with a core each, the slowest one sets the pace.
-    main = sum(cpu.get(k) or 0.0 for k in ("frontend", "backend", "optimize", "write"))
+    main = sum(cpu.get(k) or 0.0 for k in ("frontend", "backend", "summary", "optimize", "write"))
     reader = sum(cpu.get(k) or 0.0 for k in ("read_decode_background", "track_background"))
-    side = cpu.get("summary_background") or 0.0
+    side = cpu.get("outputs_import_background") or 0.0
     lines.append(f"    {'main thread (front-end to write)':<36}{main:>8.2f}")
     fps = med["fps"]
     lines.append(f"  end to end: {fps:.1f} frames/s median (target >= {TARGET_FPS:g}: "
