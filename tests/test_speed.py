@@ -168,3 +168,36 @@ def test_tracking_ahead_out_of_order_is_refused(first_frames):
     odo.track(frames[1])
     with pytest.raises(RuntimeError, match="track"):
         odo.process(frames[0])
+
+
+def _out_of_plane_reference(P1, P2, seed=0, iterations=64, rel_threshold=0.02, min_inliers=8):
+    """The first, einsum-based formulation of planarity.out_of_plane_motion (R, t, inliers)."""
+    from planar_vo.frontend.planarity import _kabsch
+
+    rng = np.random.default_rng(seed)
+    idx = np.array([rng.choice(len(P1), 3, replace=False) for _ in range(iterations)])
+    R, t = _kabsch(P1[idx], P2[idx])
+    res = np.linalg.norm(np.einsum("kij,nj->kni", R, P1) + t[:, None, :] - P2[None], axis=2)
+    thr = rel_threshold * np.maximum(P2[:, 2], 0.5)
+    mask = (res < thr[None])[(res < thr[None]).sum(1).argmax()]
+    for _ in range(2):
+        Rb, tb = _kabsch(P1[mask], P2[mask])
+        mask = np.linalg.norm(P1 @ Rb.T + tb - P2, axis=1) < thr
+    return Rb, tb, int(mask.sum())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_planarity_fit_is_bit_identical_to_its_first_formulation(seed):
+    from planar_vo.frontend.planarity import out_of_plane_motion
+
+    rng = np.random.default_rng(seed)
+    n = 150 + 50 * seed
+    P1 = rng.normal(size=(n, 3)) + [0.0, 0.0, 3.0]
+    a = 0.05 * (seed + 1)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    P2 = P1 @ R.T + [0.02, 0.0, 0.1] + rng.normal(size=(n, 3)) * 0.005
+    P2[:20] += rng.normal(size=(20, 3))  # outliers
+    got = out_of_plane_motion(P1, P2, seed=seed)
+    Rb, tb, n_in = _out_of_plane_reference(P1, P2, seed=seed)
+    assert got.inliers == n_in and n_in >= n - 25
+    assert np.array_equal(got.R, Rb) and np.array_equal(got.t, tb)
