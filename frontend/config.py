@@ -63,12 +63,14 @@ class PlaneConfig:
     wall_tilt_deg: float = 6.0       # wall normal within this of horizontal
     unlevelled_tilt_deg: float = 30.0  # floor search range while the tilt is still unknown
     refit_iterations: int = 2
+    refit_sigmas: float = 3.0        # refits keep points within this many noise sigmas of the fit
     systematic_fraction: float = 0.3  # share of the depth noise assumed correlated across a plane
 
     def __post_init__(self) -> None:
         _positive("planes", stride=self.stride, min_depth=self.min_depth,
                   n_invdepth_bins=self.n_invdepth_bins, n_image_bins=self.n_image_bins,
-                  hough_step_deg=self.hough_step_deg, inlier_rel_depth=self.inlier_rel_depth)
+                  hough_step_deg=self.hough_step_deg, inlier_rel_depth=self.inlier_rel_depth,
+                  refit_sigmas=self.refit_sigmas)
         if self.max_depth <= self.min_depth:
             raise ConfigError("config key 'planes.max_depth' must exceed 'planes.min_depth'")
 

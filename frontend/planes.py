@@ -236,7 +236,8 @@ class PlaneDetector:
         band = np.flatnonzero(np.abs(pts.w - pred) < 2.0 * tol * pts.w)
         if len(band) < max(10, int(c.min_support * self.n_total)):
             return None
-        plane = self._fit(pts.x[band], pts.y[band], pts.w[band], np.ones(len(band), bool), tol)
+        plane = self._fit(pts.x[band], pts.y[band], pts.w[band], np.ones(len(band), bool), tol,
+                          pts.x[band] if vertical else pts.y[band])
         if not self._acceptable(plane, vertical, max_tilt_deg):
             return None
         plane.kind = WALL if vertical else HORIZONTAL
@@ -332,7 +333,7 @@ class PlaneDetector:
             wb_ = w[band]
             sel = np.abs(wb_ - pred[band]) < 2.0 * tol * wb_
             xb, yb = pts.x[band], pts.y[band]
-            plane = self._fit(xb, yb, wb_, sel, tol)
+            plane = self._fit(xb, yb, wb_, sel, tol, xb if vertical else yb)
             if not self._acceptable(plane, vertical, max_tilt_deg):
                 failures += 1
                 continue
@@ -346,10 +347,12 @@ class PlaneDetector:
             planes.append(plane)
         return planes
 
-    def _fit(self, x, y, w, sel, tol) -> Plane | None:
+    def _fit(self, x, y, w, sel, tol, u) -> Plane | None:
         """Least-squares ``w = q . (x, y, 1)`` over ``sel``, refitted on its own inliers.
 
         ``x, y, w``: (K,) candidate points; returns a Plane whose ``inliers`` index them.
+        ``u``: (K,) the levelled image coordinate the plane's depth varies along (``x`` for
+        walls, ``y`` for floors): lines of constant ``u`` lie on the plane at one depth.
         The normal equations are accumulated with masked dot products (no copies).
         """
         q = None
@@ -373,12 +376,14 @@ class PlaneDetector:
             except np.linalg.LinAlgError:
                 return None
             rel = 1.0 - (x * q[0] + y * q[1] + q[2]) / w
-            if it > 0:
-                # Tighten to the sensor's own noise (3 robust sigmas): a loose band lets
-                # recessed doors or skirting boards tilt the fit.
-                mad = float(np.median(np.abs(rel[sel][::4])))
-                thr = min(tol, max(0.2 * tol, 3.0 * 1.4826 * mad))
-            sel = np.abs(rel) < thr  # relative depth error within the threshold
+            if it == 0:
+                sel = np.abs(rel) < thr  # relative depth error within the band
+                continue
+            # Then keep the dominant layer only: doors and posters a centimetre proud of a
+            # wall are parallel layers inside the band, and one fit across both tilts the
+            # wall by tenths of a degree (see _dominant_layer).
+            res = w * rel  # inverse-depth residual (1/m), roughly uniform noise (see above)
+            sel = _dominant_layer(u, res, sel, self.config.refit_sigmas, tol * float(np.median(w[sel])))
         k = np.flatnonzero(sel)
         if len(k) < 10:
             return None
@@ -408,6 +413,57 @@ class _Points:
     def subset(self, keep: np.ndarray) -> "_Points":
         return _Points(self.idx[keep], self.w[keep], self.x[keep], self.y[keep])
 
+
+
+def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max_half: float) -> np.ndarray:
+    """Points (K,) bool of the dominant layer of a plane fit's residuals.
+
+    ``u`` (K,): image coordinate along which the plane's depth varies; ``r`` (K,): residuals
+    (inverse depth, 1/m) in grid order; ``sel`` (K,) bool: current inliers. A layer proud of
+    the plane (a door) covers whole lines of constant ``u`` (door edges are vertical, and
+    vertical lines are columns in the levelled image), so the residuals are summarised per
+    band of ``u`` by their median -- precise to ``sigma / sqrt(n)`` -- and a consensus line
+    through those medians (every pair of bands tried, bands weighted by their points)
+    picks the layer with the most support; a fit's tilt error is linear in ``u``, a second
+    layer is not on that line. Points of the consensus bands within ``k`` sigmas of the
+    fit (at most ``max_half``) are kept. The noise sigma comes from differences of
+    consecutive samples -- grid neighbours, nearly always on one surface -- so a second
+    layer does not inflate it as it inflates the residuals' own spread.
+    """
+    idx = np.flatnonzero(sel)
+    rs = r[idx]
+    sig = 1.4826 / math.sqrt(2.0) * float(np.median(np.abs(np.diff(rs)))) if len(rs) > 10 else 0.0
+    half = min(max_half, max(0.1 * max_half, k * sig))
+    us = u[idx]
+    lo, hi = float(us.min()), float(us.max())
+    nb = int(min(48, max(4, len(idx) // 60)))
+    if not (sig > 0 and hi > lo):
+        return sel & (np.abs(r) < half)
+    b = np.minimum(((us - lo) * (nb / (hi - lo))).astype(np.int64), nb - 1)
+    order = np.lexsort((rs, b))
+    n = np.bincount(b, minlength=nb)
+    start = np.concatenate([[0], np.cumsum(n)[:-1]])
+    full = n >= 5
+    med = rs[order[start[full] + n[full] // 2]]
+    uc = np.bincount(b, weights=us, minlength=nb)[full] / n[full]
+    nf = n[full].astype(np.float64)
+    # 3 sigmas of a band median; at least 0.1 % of the inverse depth (1 mm per metre of
+    # depth, far below a door's offset), so noise-free data keeps every band
+    tau = np.maximum(3.0 * 1.2533 * sig / np.sqrt(nf), 0.03 * max_half)
+    m = len(med)
+    if m < 3:
+        return sel & (np.abs(r) < half)
+    ia, ib = np.triu_indices(m, 1)
+    slope = (med[ib] - med[ia]) / (uc[ib] - uc[ia])
+    icpt = med[ia] - slope * uc[ia]
+    inl = np.abs(med[None, :] - (icpt[:, None] + slope[:, None] * uc[None, :])) < tau[None, :]
+    best = int(np.argmax(inl.astype(np.float64) @ nf))
+    good = np.zeros(nb, bool)
+    good[np.flatnonzero(full)[inl[best]]] = True
+    bin_all = np.clip(((u - lo) * (nb / (hi - lo))).astype(np.int64), 0, nb - 1)
+    # Around the fit itself, not the consensus line: the line is only as good as the band
+    # medians, and a band cut around a slightly wrong line would bias the refit towards it.
+    return good[bin_all] & (np.abs(r) < half)
 
 def _box3(a: np.ndarray) -> np.ndarray:
     """Sum over 3 neighbouring bins along the last axis (zero padded)."""
