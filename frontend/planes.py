@@ -18,6 +18,7 @@ RANSAC over the point cloud.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -250,7 +251,7 @@ class PlaneDetector:
         uu = u[plane.inliers]
         if len(uu) > 400:
             uu = uu[:: len(uu) // 200]
-        lo, hi = np.percentile(uu, [2.0, 98.0])
+        lo, hi = _percentiles(uu, _EXTENT_QUANTILES)
         plane.extent = float(math.atan(hi) - math.atan(lo))
         plane.systematic = self.config.systematic_fraction
 
@@ -310,11 +311,10 @@ class PlaneDetector:
         pool = np.ones(len(idx), bool)  # raw points not yet explained
         tol = c.inlier_rel_depth
         failures = 0
+        # The accumulator of the live cells: spent cells' votes are taken out as they die.
+        # Votes are whole counts, so the sums are exact and independent of the order.
+        acc = _votes(vote_idx, cw, na * nd)
         while len(planes) < max_planes and failures < 2 and alive.any():
-            vi = vote_idx[alive]
-            m = vi >= 0
-            acc = np.bincount(vi[m], weights=np.broadcast_to(cw[alive][:, None], vi.shape)[m],
-                              minlength=na * nd)
             best = int(np.argmax(acc))
             if acc[best] < 0.5 * min_pts:
                 break  # what is left cannot make a plane of the minimum support
@@ -323,7 +323,9 @@ class PlaneDetector:
             inv_d = math.exp(lo + (di + 0.5) * lbin_w)
             # The cells this line explains are spent, whether or not the fit is accepted.
             pred_cell = inv_d * (cell_u * math.sin(a) + math.cos(a))
-            alive &= np.abs(cell_w - pred_cell) > 1.5 * tol * cell_w
+            spent = alive & ~(np.abs(cell_w - pred_cell) > 1.5 * tol * cell_w)
+            alive &= ~spent
+            acc -= _votes(vote_idx[spent], cw[spent], na * nd)
             # Least squares on the raw points near the line, then refits of the full plane.
             pred = inv_d * (u * math.sin(a) + math.cos(a))
             band = np.flatnonzero(pool & (np.abs(w - pred) < 3.0 * tol * w))
@@ -383,7 +385,7 @@ class PlaneDetector:
             # wall are parallel layers inside the band, and one fit across both tilts the
             # wall by tenths of a degree (see _dominant_layer).
             res = w * rel  # inverse-depth residual (1/m), roughly uniform noise (see above)
-            sel = _dominant_layer(u, res, sel, self.config.refit_sigmas, tol * float(np.median(w[sel])))
+            sel = _dominant_layer(u, res, sel, self.config.refit_sigmas, tol * _median(w[sel]))
         k = np.flatnonzero(sel)
         if len(k) < 10:
             return None
@@ -414,6 +416,77 @@ class _Points:
         return _Points(self.idx[keep], self.w[keep], self.x[keep], self.y[keep])
 
 
+def _votes(vote_idx: np.ndarray, weight: np.ndarray, size: int) -> np.ndarray:
+    """Hough accumulator (size,) float64: each row of ``vote_idx`` (C, A) int32 (-1: no vote)
+    votes ``weight`` (C,) into its bins."""
+    m = vote_idx >= 0
+    return np.bincount(vote_idx[m], weights=np.broadcast_to(weight[:, None], vote_idx.shape)[m],
+                       minlength=size)
+
+
+#: Quantiles of the inliers' image coordinate that bound a plane's angular extent.
+_EXTENT_QUANTILES = np.array([2.0, 98.0]) / 100.0
+
+
+def _percentiles(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``np.quantile(a, q)`` (linear interpolation) of a 1-D float array, bit for bit.
+
+    ``q`` (Q,) float64 fractions in [0, 1]; the interpolation is numpy's, including its
+    switch to ``b - (b - a) (1 - t)`` above ``t = 0.5``.
+    """
+    n = a.size
+    v = (n - 1) * q
+    lo = np.floor(v).astype(np.intp)
+    hi = lo + 1
+    top = v >= n - 1
+    lo[top] = -1
+    hi[top] = -1
+    part = np.partition(a, np.unique(np.concatenate(([0, -1], lo, hi))))
+    if np.isnan(part[-1]):
+        return np.full(len(q), np.nan)
+    x0, x1 = part[lo], part[hi]
+    t = v - lo
+    d = x1 - x0
+    return np.where(t >= 0.5, x1 - d * (1 - t), x0 + d * t)
+
+
+
+def _median(a: np.ndarray) -> float:
+    """``np.median`` of a 1-D float array, bit for bit, without its general-axis overhead
+    (plane refits call it several times per plane)."""
+    n = a.size
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    part = np.partition(a, [k - 1, k, n - 1] if n % 2 == 0 else [k, n - 1])
+    if np.isnan(part[-1]):
+        return float("nan")
+    return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2.0)
+
+
+def _band_medians(r: np.ndarray, band: np.ndarray, count: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Per band, the value of rank ``count // 2`` of ``r`` (K,) among the points of that band
+    (``band`` (K,) int; ``count`` (B,) points per band, ``which`` (B,) bool bands wanted).
+
+    The same values as sorting the points by (band, r), for the price of a stable integer
+    sort and one small partition per band.
+    """
+    rb = r[np.argsort(band, kind="stable")]
+    ends = np.cumsum(count)
+    out = np.empty(int(which.sum()))
+    for j, i in enumerate(np.flatnonzero(which)):
+        c = int(count[i])
+        out[j] = np.partition(rb[ends[i] - c:ends[i]], c // 2)[c // 2]
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(m, 1)``, cached (read-only): every pair of ``m`` bands."""
+    ia, ib = np.triu_indices(m, 1)
+    ia.flags.writeable = ib.flags.writeable = False
+    return ia, ib
+
 
 def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max_half: float) -> np.ndarray:
     """Points (K,) bool of the dominant layer of a plane fit's residuals.
@@ -432,7 +505,7 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     """
     idx = np.flatnonzero(sel)
     rs = r[idx]
-    sig = 1.4826 / math.sqrt(2.0) * float(np.median(np.abs(np.diff(rs)))) if len(rs) > 10 else 0.0
+    sig = 1.4826 / math.sqrt(2.0) * _median(np.abs(np.diff(rs))) if len(rs) > 10 else 0.0
     half = min(max_half, max(0.1 * max_half, k * sig))
     us = u[idx]
     lo, hi = float(us.min()), float(us.max())
@@ -440,11 +513,9 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     if not (sig > 0 and hi > lo):
         return sel & (np.abs(r) < half)
     b = np.minimum(((us - lo) * (nb / (hi - lo))).astype(np.int64), nb - 1)
-    order = np.lexsort((rs, b))
     n = np.bincount(b, minlength=nb)
-    start = np.concatenate([[0], np.cumsum(n)[:-1]])
     full = n >= 5
-    med = rs[order[start[full] + n[full] // 2]]
+    med = _band_medians(rs, b, n, full)
     uc = np.bincount(b, weights=us, minlength=nb)[full] / n[full]
     nf = n[full].astype(np.float64)
     # 3 sigmas of a band median; at least 0.1 % of the inverse depth (1 mm per metre of
@@ -453,7 +524,7 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     m = len(med)
     if m < 3:
         return sel & (np.abs(r) < half)
-    ia, ib = np.triu_indices(m, 1)
+    ia, ib = _pairs(m)
     slope = (med[ib] - med[ia]) / (uc[ib] - uc[ia])
     icpt = med[ia] - slope * uc[ia]
     inl = np.abs(med[None, :] - (icpt[:, None] + slope[:, None] * uc[None, :])) < tau[None, :]

@@ -201,3 +201,26 @@ def test_planarity_fit_is_bit_identical_to_its_first_formulation(seed):
     Rb, tb, n_in = _out_of_plane_reference(P1, P2, seed=seed)
     assert got.inliers == n_in and n_in >= n - 25
     assert np.array_equal(got.R, Rb) and np.array_equal(got.t, tb)
+
+
+def test_plane_helpers_match_numpy_bit_for_bit():
+    from planar_vo.frontend.planes import _band_medians, _median, _pairs, _percentiles
+
+    rng = np.random.default_rng(7)
+    for n in list(range(1, 12)) + [100, 101, 4000, 4001]:
+        a = rng.normal(size=n) * 1e-3
+        a[::3] = np.round(a[::3], 4)  # ties
+        assert _median(a) == np.median(a), n
+        assert np.array_equal(_percentiles(a, np.array([0.02, 0.98])), np.percentile(a, [2.0, 98.0])), n
+        nb = max(1, n // 60)
+        band = rng.integers(0, nb, n)
+        count = np.bincount(band, minlength=nb)
+        which = count >= 5
+        order = np.lexsort((a, band))
+        start = np.concatenate([[0], np.cumsum(count)[:-1]])
+        assert np.array_equal(_band_medians(a, band, count, which), a[order[start[which] + count[which] // 2]])
+    for m in (3, 4, 48):
+        ia, ib = _pairs(m)
+        ra, rb = np.triu_indices(m, 1)
+        assert np.array_equal(ia, ra) and np.array_equal(ib, rb) and not ia.flags.writeable
+    assert np.isnan(_median(np.array([1.0, np.nan, 2.0])))
