@@ -469,9 +469,10 @@ def _band_medians(r: np.ndarray, band: np.ndarray, count: np.ndarray, which: np.
     (``band`` (K,) int; ``count`` (B,) points per band, ``which`` (B,) bool bands wanted).
 
     The same values as sorting the points by (band, r), for the price of a stable integer
-    sort and one small partition per band.
+    sort (a radix sort on bytes) and one small partition per band.
     """
-    rb = r[np.argsort(band, kind="stable")]
+    key = band.astype(np.uint8) if len(count) <= 256 else band
+    rb = r[np.argsort(key, kind="stable")]
     ends = np.cumsum(count)
     out = np.empty(int(which.sum()))
     for j, i in enumerate(np.flatnonzero(which)):
@@ -527,7 +528,10 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     ia, ib = _pairs(m)
     slope = (med[ib] - med[ia]) / (uc[ib] - uc[ia])
     icpt = med[ia] - slope * uc[ia]
-    inl = np.abs(med[None, :] - (icpt[:, None] + slope[:, None] * uc[None, :])) < tau[None, :]
+    d = slope[:, None] * uc[None, :]  # |med - (icpt + slope uc)| per (pair, band), in place
+    d += icpt[:, None]
+    np.subtract(med[None, :], d, out=d)
+    inl = np.abs(d, out=d) < tau[None, :]
     best = int(np.argmax(inl.astype(np.float64) @ nf))
     good = np.zeros(nb, bool)
     good[np.flatnonzero(full)[inl[best]]] = True
