@@ -61,9 +61,13 @@ class BackendConfig:
     #: a new one every ``manhattan_instance_size`` links or at each revisit.
     #: 0 = one variable per frame.
     manhattan_instance_size: int = 25
-    manhattan_tie_sigma_deg: float = 1e-4
+    #: Effectively equality next to the 0.3-degree links, yet not so tight that iSAM2's
+    #: Cholesky meets a near-singular pivot (1e-4 deg made it throw on a hall run).
+    manhattan_tie_sigma_deg: float = 1e-3
     manhattan_min_sigma_deg: float = 0.3     # floor on ManhattanObservation.sigma
-    manhattan_min_score: float = 0.0         # observations with a lower score are ignored
+    #: Observations covering less image area are ignored: box faces and pillar facets
+    #: (a few % of the image) made 10-18 spurious frames in a hall and biased the yaw.
+    manhattan_min_score: float = 0.08
     gate_sigmas: float = 4.0
     gate_max_deg: float = 10.0
     #: "any": every unmatched observation may start a frame; "dominant": only the
