@@ -472,13 +472,14 @@ def _band_medians(r: np.ndarray, band: np.ndarray, count: np.ndarray, which: np.
     sort (a radix sort on bytes) and one small partition per band.
     """
     key = band.astype(np.uint8) if len(count) <= 256 else band
-    rb = r[np.argsort(key, kind="stable")]
-    ends = np.cumsum(count)
-    out = np.empty(int(which.sum()))
-    for j, i in enumerate(np.flatnonzero(which)):
-        c = int(count[i])
-        out[j] = np.partition(rb[ends[i] - c:ends[i]], c // 2)[c // 2]
-    return out
+    rb = r[np.argsort(key, kind="stable")]  # a fresh array: partitioned in place, band by band
+    ends, counts = np.cumsum(count).tolist(), count.tolist()
+    out = []
+    for i in np.flatnonzero(which).tolist():
+        seg = rb[ends[i] - counts[i]:ends[i]]
+        seg.partition(counts[i] // 2)
+        out.append(seg[counts[i] // 2])
+    return np.array(out, dtype=np.float64)
 
 
 @functools.lru_cache(maxsize=64)
