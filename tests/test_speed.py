@@ -97,14 +97,16 @@ def test_report_has_cpu_per_stage(lturn_log, tmp_path):
     assert cpu["process"] >= 0.9 * parts
 
 
-def test_bench_run_prints_figures(lturn_log, tmp_path, capsys):
+def test_bench_run_prints_figures_and_checks_results(lturn_log, tmp_path, capsys):
     import json
 
     from planar_vo.bench import run as bench
 
     p = argparse.ArgumentParser()
     bench.add_arguments(p)
-    args = p.parse_args([str(lturn_log), "--frames", "12", "--repeat", "1", "--json", str(tmp_path / "b.json")])
+    keep = tmp_path / "keep"
+    args = p.parse_args([str(lturn_log), "--frames", "12", "--repeat", "1", "--json", str(tmp_path / "b.json"),
+                         "--keep", str(keep)])
     assert bench.main(args) == 0
     out = capsys.readouterr().out
     assert "frames/s median" in out and "peak RSS" in out and "front-end (main thread)" in out
@@ -114,6 +116,24 @@ def test_bench_run_prints_figures(lturn_log, tmp_path, capsys):
     run0 = log["runs"][0]
     assert run0["fps"] > 0 and 50 < run0["peak_rss_mb"] < 4000
     assert run0["cpu_ms_per_frame"]["frontend.planes"] > 0
+    kept = keep / lturn_log.stem / "run0"
+    assert (kept / "raw.tum").is_file() and (kept / "smoothed.tum").is_file()
+
+    # Against itself: the same; against a doctored copy: reported, exit code 1.
+    assert bench.trajectory_difference(kept, kept) == 0.0
+    doctored = tmp_path / "doctored" / lturn_log.stem / "run0"
+    doctored.mkdir(parents=True)
+    for name in ("raw.tum", "smoothed.tum"):
+        lines = (kept / name).read_text().splitlines()
+        if name == "smoothed.tum":
+            v = lines[-1].split()
+            v[1] = repr(float(v[1]) + 1e-6)
+            lines[-1] = " ".join(v)
+        (doctored / name).write_text("\n".join(lines) + "\n")
+    assert bench.trajectory_difference(kept, doctored) == pytest.approx(1e-6, rel=1e-3)
+    args = p.parse_args([str(lturn_log), "--frames", "12", "--repeat", "1", "--reference", str(tmp_path / "doctored")])
+    assert bench.main(args) == 1
+    assert "DIFFERENT" in capsys.readouterr().out
 
 
 def test_bench_run_rejects_a_missing_log(tmp_path):

@@ -11,18 +11,29 @@ the peak RSS; then the median over the runs of the CPU milliseconds per frame of
 stage -- the front-end's own stages in CPU time of the main thread -- and the load
 average. On a machine shared with other jobs, wall-clock fps depends on the load; CPU
 times do not (much), so both are shown.
+
+Results must not depend on speed work: the runs of one invocation are checked against
+each other, and ``--reference DIR`` checks them against the runs an earlier invocation
+kept with ``--keep DIR`` (raw.tum and smoothed.tum, largest difference at most
+:data:`RESULT_TOLERANCE`; the command exits with 1 otherwise).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 TARGET_FPS = 30.0
+#: Largest difference (stamps in s, pose matrix entries) between runs taken as "the same result".
+RESULT_TOLERANCE = 1e-9
+TRAJECTORIES = ("raw.tum", "smoothed.tum")
 _CHILD_FLAG = "--_child"
 
 #: Stages of report.json ``cpu_ms_per_frame`` in print order, with their labels.
@@ -50,6 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default=None, metavar="YAML", help="planar-vo run configuration")
     parser.add_argument("--online", action="store_true", help="iSAM2 per frame instead of batch LM")
     parser.add_argument("--json", default=None, metavar="PATH", help="also write all figures as JSON")
+    parser.add_argument("--keep", default=None, metavar="DIR",
+                        help="keep the run folders as DIR/<log name>/run<i> (default: removed)")
+    parser.add_argument("--reference", default=None, metavar="DIR",
+                        help="a --keep folder of an earlier benchmark: check that raw.tum and smoothed.tum "
+                             f"are unchanged (largest difference <= {RESULT_TOLERANCE:g}); exit 1 if not")
 
 
 # ------------------------------------------------------------------------ child
@@ -109,14 +125,39 @@ def _median(values):
     return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
 
 
+def trajectory_difference(a: Path, b: Path) -> float:
+    """Largest absolute difference between the trajectories of two run folders: stamps (s)
+    and pose matrix entries of raw.tum and smoothed.tum; inf if they do not pair up."""
+    from planar_vo.io.trajectory import read_tum_trajectory
+
+    worst = 0.0
+    for name in TRAJECTORIES:
+        ta, tb = read_tum_trajectory(a / name), read_tum_trajectory(b / name)
+        if len(ta) != len(tb):
+            return math.inf
+        worst = max(worst, float(np.abs(ta.stamps - tb.stamps).max(initial=0.0)),
+                    float(np.abs(ta.poses - tb.poses).max(initial=0.0)))
+    return worst
+
+
 def bench_log(log: Path, args: argparse.Namespace) -> dict:
-    """All runs of one log and their medians."""
+    """All runs of one log, their medians and how their trajectories compare."""
     runs = []
+    keep = Path(args.keep) / log.stem if args.keep else None
     with tempfile.TemporaryDirectory(prefix="planar-vo-bench-run-") as tmp:
+        base = keep or Path(tmp)
         for i in range(args.repeat):
-            runs.append(_run_child(log, Path(tmp) / f"run{i}", args))
+            runs.append(_run_child(log, base / f"run{i}", args))
+        # The runs of one invocation must agree (threads must not change results) ...
+        results = {"between_runs": max((trajectory_difference(base / "run0", base / f"run{i}")
+                                        for i in range(1, args.repeat)), default=0.0)}
+        # ... and with an earlier benchmark's runs, when given.
+        if args.reference:
+            ref = Path(args.reference) / log.stem / "run0"
+            results["vs_reference"] = trajectory_difference(ref, base / "run0")
     keys = {k for r in runs for k in r["cpu_ms_per_frame"]}
     return {"log": str(log), "frames": runs[0]["frames"], "image_size": runs[0]["image_size"], "runs": runs,
+            "trajectory_difference": results,
             "median": {"fps": _median([r["fps"] for r in runs]),
                        "peak_rss_mb": _median([r["peak_rss_mb"] for r in runs]),
                        "cpu_ms_per_frame": {k: _median([r["cpu_ms_per_frame"].get(k) for r in runs])
@@ -142,6 +183,10 @@ def format_log(res: dict) -> str:
     reader = sum(cpu.get(k) or 0.0 for k in ("read_decode_background", "track_background"))
     side = cpu.get("outputs_import_background") or 0.0
     lines.append(f"    {'main thread (front-end to write)':<36}{main:>8.2f}")
+    diff = res["trajectory_difference"]
+    same = all(v <= RESULT_TOLERANCE for v in diff.values())
+    lines.append("  trajectories: " + ", ".join(f"{k.replace('_', ' ')} max |diff| {v:.3g}" for k, v in diff.items())
+                 + f" ({'the same' if same else 'DIFFERENT'} within {RESULT_TOLERANCE:g})")
     fps = med["fps"]
     lines.append(f"  end to end: {fps:.1f} frames/s median (target >= {TARGET_FPS:g}: "
                  f"{'met' if fps >= TARGET_FPS else 'NOT met'}); CPU-bound pace with a free core per thread "
@@ -162,6 +207,12 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
     if args.json and not Path(args.json).resolve().parent.is_dir():
         raise InputError(f"--json {args.json}: folder {Path(args.json).parent} does not exist")
+    if args.reference:
+        for p in logs:
+            ref = Path(args.reference) / p.stem / "run0"
+            if not all((ref / name).is_file() for name in TRAJECTORIES):
+                raise InputError(f"--reference {args.reference}: no {ref}/raw.tum and smoothed.tum; "
+                                 "make it with --keep on an earlier benchmark of the same logs")
     import cv2
 
     env = {"cpu_count": os.cpu_count(), "load_average": os.getloadavg()[0],
@@ -180,7 +231,10 @@ def main(args: argparse.Namespace) -> int:
 
         write_text_atomic(args.json, json.dumps({"environment": env, "logs": results}, indent=2) + "\n")
         print(f"\nwrote {args.json}")
-    return 0
+    if args.keep:
+        print(f"\nrun folders kept in {args.keep}/<log name>/run<i>")
+    changed = any(v > RESULT_TOLERANCE for r in results for v in r["trajectory_difference"].values())
+    return 1 if changed else 0
 
 
 if __name__ == "__main__":
