@@ -147,12 +147,13 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
         progress: bool = True, gt_path: str | Path | None = None) -> RunResult:
     """Run the whole job on one log; see the module docstring for the outputs.
 
-    Threads: the main thread runs the front-end and back-end, one thread reads and
-    decodes the next frames and tracks their corners, one loads the output stage's
-    modules meanwhile. The log is read once: the summary in the report comes from the
-    same pass (:meth:`RGBDLog.summary` after a complete ``frames()`` pass). The kernels underneath (OpenCV, BLAS)
-    get one thread each for the run: the parallelism is the pipeline's, and on 2 cores
-    more threads only compete with it (the previous settings are restored afterwards).
+    Threads: the main thread runs the front-end and back-end; a reader thread decodes the
+    next frames and tracks their corners (:meth:`PlanarOdometry.track`); a third loads
+    the output stage's modules meanwhile. The log is read once: the summary in the report
+    comes from the same pass (``summary()`` after a complete ``frames()`` pass). The
+    kernels underneath (OpenCV, OpenBLAS) get one thread each for the run: the parallelism
+    is the pipeline's, and on 2 cores more threads only compete with it (the previous
+    settings are restored afterwards). Results do not depend on any of this.
     """
     import cv2
 
