@@ -60,7 +60,17 @@ def out_of_plane_motion(P1: np.ndarray, P2: np.ndarray, *, seed: int = 0, iterat
     if n < max(3, min_inliers):
         return None
     rng = np.random.default_rng(seed)
-    idx = np.array([rng.choice(n, 3, replace=False) for _ in range(iterations)])
+    # Three distinct indices per hypothesis, uniformly, drawn for all hypotheses at once
+    # (a per-sample ``rng.choice`` costs more than the whole fit): the second skips the
+    # first, the third skips both.
+    a = rng.integers(0, n, iterations)
+    b = rng.integers(0, n - 1, iterations)
+    b += b >= a
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    c = rng.integers(0, n - 2, iterations)
+    c += c >= lo
+    c += c >= hi
+    idx = np.stack([a, b, c], axis=1)
     R, t = _kabsch(P1[idx], P2[idx])
     # Residuals |R P1 + t - P2| of every point under every hypothesis, (k, n), one
     # coordinate at a time on contiguous (k, n) arrays (a generic einsum and a norm over a
