@@ -130,7 +130,7 @@ class OdometryConfig:
     dpp_min_score: float = 0.05      # local frames covering less image area (in both views) are not used
     dpp_min_track_age: int = 3       # nor frames seen for fewer consecutive frames (walls entering view)
     fuse_yaw: bool = True            # check and fuse the Manhattan yaw with the 2-point yaw
-    planarity_check: bool = True     # also fit a 6-DoF motion per step to judge if the motion is planar
+    planarity_check: bool = True     # fit a 6-DoF motion on steps into frames without a floor, to judge planarity
     ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
     ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx
     ransac_iterations: int = 200

@@ -265,7 +265,9 @@ class PlanarOdometry:
         x1, x2, P1, P2 = x1[ok], x2[ok], P1[ok], P2[ok]
         depth_ok = np.isfinite(P1[:, 2]) & np.isfinite(P2[:, 2])
         info["matches_with_depth"] = int(depth_ok.sum())
-        if c.planarity_check and depth_ok.sum() >= 8:
+        # The floor, when seen, judges planarity far better (planar_vo.pipeline): the 6-DoF
+        # check is only needed on frames without one.
+        if c.planarity_check and depth_ok.sum() >= 8 and not info.get("floor_seen"):
             oop = out_of_plane_motion(P1[depth_ok], P2[depth_ok], seed=c.seed)
             if oop is not None:
                 info["out_of_plane"] = {"tilt_deg": oop.tilt_deg, "dy_m": oop.dy_m, "inliers": oop.inliers,
