@@ -11,3 +11,31 @@ def lturn_log(tmp_path_factory):
     cfg = SynthConfig(layout="lturn", seed=5, n_frames=100, speed=0.5)
     write_synth_log(cfg, out, progress=False)
     return out
+
+
+def rewrite_mcap(src, dst, edit):
+    """Copy an MCAP message by message; ``edit(topic, k, data) -> data`` may change the payload of
+    the ``k``-th message (0-based) on each topic, e.g. to corrupt it."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        w = Writer(g)
+        w.start()
+        schemas, channels, counts = {}, {}, {}
+        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=True):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            k = counts.get(channel.topic, 0)
+            counts[channel.topic] = k + 1
+            w.add_message(channels[channel.id], msg.log_time, edit(channel.topic, k, msg.data), msg.publish_time)
+        w.finish()
+
+
+@pytest.fixture
+def mcap_rewriter():
+    """:func:`rewrite_mcap`, for tests in any folder."""
+    return rewrite_mcap

@@ -100,34 +100,11 @@ def test_truncated_log_keeps_results(lturn_log, tmp_path, capsys):
     assert r["partial"] and "byte" in r["stop_reason"]
 
 
-def _copy_with_corrupt_colour(src, dst, corrupt_index):
-    """Rewrite an MCAP, cutting the colour message number ``corrupt_index`` in half."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with open(src, "rb") as f, open(dst, "wb") as g:
-        reader = make_reader(f)
-        w = Writer(g)
-        w.start()
-        schemas, channels, k = {}, {}, 0
-        for schema, channel, msg in reader.iter_messages(log_time_order=True):
-            if schema.id not in schemas:
-                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                          schemas[schema.id], channel.metadata)
-            data = msg.data
-            if "image_color" in channel.topic:
-                if k == corrupt_index:
-                    data = data[: len(data) // 2]
-                k += 1
-            w.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
-        w.finish()
-
-
-def test_corrupt_frame_is_skipped_counted_and_named(lturn_log, tmp_path):
+def test_corrupt_frame_is_skipped_counted_and_named(lturn_log, tmp_path, mcap_rewriter):
     bad = tmp_path / "bad.mcap"
-    _copy_with_corrupt_colour(lturn_log, bad, 30)
+    # colour message 30 cut in half: its CDR no longer decodes
+    mcap_rewriter(lturn_log, bad, lambda topic, k, data: data[: len(data) // 2]
+                  if "image_color" in topic and k == 30 else data)
     code = main(["run", str(bad), "--out", str(tmp_path / "run"), "--quiet", "--no-plot", "--stop", "60"])
     assert code == 0
     r = json.loads((tmp_path / "run" / "report.json").read_text())

@@ -77,33 +77,11 @@ def test_corrupt_colour_and_depth_at_sampled_and_other_frames(tmp_path):
     assert s["depth_frames_sampled"] == 13
 
 
-def _with_garbage_payloads(src, dst, topic, indices):
-    """Copy an MCAP, replacing the payload of messages number ``indices`` on ``topic``."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with open(src, "rb") as f, open(dst, "wb") as g:
-        w = Writer(g)
-        w.start()
-        schemas, channels, k = {}, {}, 0
-        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=True):
-            if schema.id not in schemas:
-                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                          schemas[schema.id], channel.metadata)
-            data = msg.data
-            if channel.topic == topic:
-                data = b"\x00\x01" if k in indices else data
-                k += 1
-            w.add_message(channels[channel.id], msg.log_time, data, msg.publish_time)
-        w.finish()
-
-
-def test_undecodable_messages_mixed_with_bad_frames(tmp_path):
+def test_undecodable_messages_mixed_with_bad_frames(tmp_path, mcap_rewriter):
     src, path = tmp_path / "src.mcap", tmp_path / "cdr.mcap"
     write_ros2(src, _messages(corrupt_color={3}, corrupt_depth={11}))
-    _with_garbage_payloads(src, path, "/cam/depth", {5, 6, 20})
+    mcap_rewriter(src, path, lambda topic, k, data: b"\x00\x01"
+                  if topic == "/cam/depth" and k in {5, 6, 20} else data)
     frames, (s, _, stats) = _compare(path)
     # 37 pairs (three depth messages undecodable: their colour is unpaired), 2 bad frames
     assert s["frames"] == 37 and len(frames) == 35
