@@ -2,7 +2,6 @@
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from planar_vo.io import RGBDLogWriter, messages as m
 from planar_vo.io.codecs import encode_color, encode_depth
