@@ -151,3 +151,25 @@ def test_real_tum_sample_runs_and_is_reported_not_planar(tmp_path, capsys):
     true_range = np.percentile(tilt, 95) - np.percentile(tilt, 5)
     assert true_range > 3.0  # the sample really tilts by more than the planar tolerance
     assert pl["motion"]["tilt_range_deg"] == pytest.approx(true_range, abs=1.0)
+
+
+def test_demo_runs_the_whole_job(lturn_log, tmp_path, capsys):
+    """`planar-vo demo` on a given log (the shipped recipe is rendered in CI's demo run)."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--log", str(lturn_log), "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "end-point drift [% of path]" in text and "trajectory.png" in text
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["smoothed"]["endpoint_drift_pct"] < 1.0
+    assert (out / "trajectory.png").stat().st_size > 0
+
+
+def test_demo_recipe_is_a_valid_synth_config():
+    import yaml
+
+    from planar_vo.commands.demo import RECIPE
+    from planar_vo.configtools import from_dict
+    from planar_vo.io.synth import SynthConfig
+
+    cfg = from_dict(SynthConfig, yaml.safe_load(RECIPE.read_text()))
+    assert cfg.layout == "lturn" and cfg.n_frames == 300 and cfg.seed == 2024
