@@ -293,10 +293,10 @@ def _msac(e2, front_pos, front_neg, thr2: float):
     return np.where(ok, e2, thr2).sum(-1), sign, ok
 
 
-def _sampson_residuals_2(m: _Matches, theta: float, alpha: float, jac: bool):
-    """Sampson residuals (M,) and Jacobian (M, 2) w.r.t. (yaw, alpha), t = (sin a, 0, cos a)."""
-    c, s = math.cos(theta), math.sin(theta)
-    tx, tz = math.sin(alpha), math.cos(alpha)
+def _sampson(m: _Matches, c: float, s: float, tx: float, tz: float, derivs=None):
+    """Sampson residuals (M,) of the planar essential matrix with ``cos/sin yaw = c, s`` and
+    translation ``(tx, 0, tz)``, and their Jacobian (M, K): ``derivs(a, b, c', d)`` gives the
+    derivatives ``(da, db, dc', dd)`` of the coefficients (see ``_coeffs``) per parameter."""
     a, b, cc, d = _coeffs(c, s, tx, tz)
     r = a * m.F[0] + b * m.F[1] + cc * m.F[2] + d * m.F[3]
     u = b * m.X1 + cc
@@ -304,15 +304,22 @@ def _sampson_residuals_2(m: _Matches, theta: float, alpha: float, jac: bool):
     g = a * a * m.Y1sq + b * b * m.Y2sq + u * u + v * v
     sg = np.sqrt(np.maximum(g, 1e-300))
     e = r / sg
-    if not jac:
+    if derivs is None:
         return e, None
-    J = np.empty((len(e), 2))
-    # d/dtheta: (da, db, dc, dd) = (0, -c', b, 0);  d/dalpha: (d, c', -b, -a)
-    for k, (da, db, dc, dd) in enumerate(((0.0, -cc, b, 0.0), (d, cc, -b, -a))):
+    cols = derivs(a, b, cc, d)
+    J = np.empty((len(e), len(cols)))
+    for k, (da, db, dc, dd) in enumerate(cols):
         dr = da * m.F[0] + db * m.F[1] + dc * m.F[2] + dd * m.F[3]
         dg = 2.0 * (a * da * m.Y1sq + u * (m.X1 * db + dc) + b * db * m.Y2sq + v * (m.X2 * da + dd))
         J[:, k] = (dr - 0.5 * e * dg / sg) / sg
     return e, J
+
+
+def _sampson_residuals_2(m: _Matches, theta: float, alpha: float, jac: bool):
+    """Sampson residuals (M,) and Jacobian (M, 2) w.r.t. (yaw, alpha), t = (sin a, 0, cos a)."""
+    # d/dtheta: (da, db, dc, dd) = (0, -c', b, 0);  d/dalpha: (d, c', -b, -a)
+    derivs = (lambda a, b, cc, d: ((0.0, -cc, b, 0.0), (d, cc, -b, -a))) if jac else None
+    return _sampson(m, math.cos(theta), math.sin(theta), math.sin(alpha), math.cos(alpha), derivs)
 
 
 def _levenberg_marquardt(fun, p0: np.ndarray, max_iter: int):
@@ -639,22 +646,12 @@ def _metric_residuals(m: _Matches, w_img: float, Q1: np.ndarray, Q2: np.ndarray,
     tn = math.hypot(tx, tz)
     parts, jparts = [], []
     if tn > 1e-12 and len(m.X1):
-        a, b, cc, d = _coeffs(c, s, tx, tz)
-        r = a * m.F[0] + b * m.F[1] + cc * m.F[2] + d * m.F[3]
-        u = b * m.X1 + cc
-        v = a * m.X2 + d
-        g = a * a * m.Y1sq + b * b * m.Y2sq + u * u + v * v
-        sg = np.sqrt(np.maximum(g, 1e-300))
-        e = r / sg
+        # d/dtheta (0, -c', b, 0); d/dtx (0, s, -c, 1); d/dtz (-1, c, s, 0)
+        derivs = (lambda a, b, cc, d: ((0.0, -cc, b, 0.0), (0.0, s, -c, 1.0), (-1.0, c, s, 0.0))) if jac else None
+        e, J = _sampson(m, c, s, tx, tz, derivs)
         parts.append(e * w_img)
         if jac:
-            J = np.empty((len(e), 3))
-            # d/dtheta (0, -c', b, 0); d/dtx (0, s, -c, 1); d/dtz (-1, c, s, 0)
-            for k, (da, db, dc, dd) in enumerate(((0.0, -cc, b, 0.0), (0.0, s, -c, 1.0), (-1.0, c, s, 0.0))):
-                dr = da * m.F[0] + db * m.F[1] + dc * m.F[2] + dd * m.F[3]
-                dg = 2.0 * (a * da * m.Y1sq + u * (m.X1 * db + dc) + b * db * m.Y2sq + v * (m.X2 * da + dd))
-                J[:, k] = (dr - 0.5 * e * dg / sg) / sg * w_img
-            jparts.append(J)
+            jparts.append(J * w_img)
     # 3-D: (P2 - R P1 - t)_{x,z} / sigma
     rx = c * Q1[:, 0] + s * Q1[:, 2]
     rz = -s * Q1[:, 0] + c * Q1[:, 2]
