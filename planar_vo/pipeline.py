@@ -104,12 +104,16 @@ def open_input(log_path: str | Path, config: RunConfig):
     from planar_vo.io.types import CameraIntrinsics
 
     c = config.input
-    intr = None
+    log = open_log(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
+                   info_topic=c.info_topic, sync_tolerance=c.sync_tolerance_s)
     if c.fx is not None:
-        # Width/height are filled from the first image by the reader when 0.
-        intr = CameraIntrinsics(0, 0, c.fx, c.fy, c.cx, c.cy)
-    return open_log(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
-                    info_topic=c.info_topic, intrinsics=intr, sync_tolerance=c.sync_tolerance_s)
+        try:
+            w, h = log.image_size  # the override is for the images as they are
+            log.set_intrinsics(CameraIntrinsics(w, h, c.fx, c.fy, c.cx, c.cy))
+        except BaseException:
+            log.close()
+            raise
+    return log
 
 
 def resolve_mount(log_mount, config: RunConfig):
