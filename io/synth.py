@@ -45,7 +45,8 @@ from planar_vo.io.synth_texture import (FLAT_COLORS, TEX_ATLAS, TEX_CEILING, TEX
                                         build_textures)
 from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
 
-__all__ = ["SynthConfig", "SynthFrame", "SynthRenderer", "render_sequence", "synth_trajectory",
+__all__ = ["SynthConfig", "SynthFrame", "SynthRenderer", "render_sequence", "synth_trajectory", "with_sensor",
+           "SENSOR_PRESETS",
            "synth_intrinsics", "synth_mount", "write_synth_log", "LAYOUTS", "TEXTURE_LEVELS"]
 
 _MAT_TEX = {MAT_FLOOR: TEX_FLOOR, MAT_WALL: TEX_WALL, MAT_CEILING: TEX_CEILING, MAT_CONCRETE: TEX_CONCRETE,
@@ -105,6 +106,15 @@ class SynthConfig:
     # colour
     image_noise: float = 2.0
     vignetting: float = 0.15
+    # sensor effects beyond the ideal camera (all off by default; ``sensor="kinect2"`` in
+    # :func:`with_sensor` turns on the set the benchmarks call "Kinect v2 effects")
+    exposure_ms: float = 0.0
+    readout_ms: float = 0.0
+    color_delay_ms: float = 0.0
+    auto_exposure: bool = False
+    ae_target: float = 115.0
+    flicker: float = 0.0
+    flying_pixels: float = 0.0
     # ground truth: a Manhattan frame counts as visible from this image fraction of in-range wall
     min_wall_fraction: float = 0.002
 
@@ -134,6 +144,16 @@ class SynthConfig:
             bad("weave", "must be within [0, corridor_width / 4]")
         if self.ramp_s < 0:
             bad("ramp_s", "must be >= 0")
+        for name in ("exposure_ms", "readout_ms", "color_delay_ms", "flicker"):
+            if not (getattr(self, name) >= 0 and math.isfinite(getattr(self, name))):
+                bad(name, "must be a finite number >= 0")
+        if self.exposure_ms + self.readout_ms + 2 * self.color_delay_ms > 1000.0 / self.rate_hz:
+            bad("exposure_ms", "exposure + readout + 2 x colour delay must fit in one frame period "
+                f"({1000.0 / self.rate_hz:.0f} ms)")
+        if not 0.0 <= self.flying_pixels <= 1.0:
+            bad("flying_pixels", "must be a fraction in [0, 1]")
+        if not 1.0 <= self.ae_target <= 254.0:
+            bad("ae_target", "must be a grey level in [1, 254]")
         need = min_path_length(self.layout, self.turn_radius_used, self.corridor_width)
         if self.path_length < need:
             frames = int(math.ceil((need / self.speed + self.ramp_s) * self.rate_hz)) + 2
@@ -187,6 +207,30 @@ class SynthFrame:
     truth: dict = field(default_factory=dict)
 
 
+#: Named sensor models for :func:`with_sensor`. ``ideal``: the defaults (a global-shutter
+#: colour camera synchronised with the depth camera, fixed exposure). ``kinect2``: the
+#: Kinect v2's free-running colour camera as logged by iai_kinect2: auto-exposure, a
+#: 20 ms exposure (its indoor setting, frame rate kept at 30 Hz), a rolling-shutter
+#: readout, colour and depth streams that are not synchronised (a constant offset of up
+#: to half a 30 Hz period), mains flicker, and flying pixels at depth edges.
+SENSOR_PRESETS: dict[str, dict] = {
+    "ideal": {},
+    "kinect2": {"exposure_ms": 20.0, "readout_ms": 15.0, "color_delay_ms": 16.0, "auto_exposure": True,
+                "flicker": 0.02, "flying_pixels": 0.5},
+}
+
+
+def with_sensor(cfg: SynthConfig, sensor: str) -> SynthConfig:
+    """``cfg`` with the sensor-effect fields set to the preset ``sensor`` (see ``SENSOR_PRESETS``)."""
+    if sensor not in SENSOR_PRESETS:
+        raise ConfigError(f"sensor {sensor!r}: must be one of {', '.join(SENSOR_PRESETS)}")
+    base = SynthConfig.__dataclass_fields__
+    fields = ("exposure_ms", "readout_ms", "color_delay_ms", "auto_exposure", "ae_target", "flicker", "flying_pixels")
+    values = {f: base[f].default for f in fields}
+    values.update(SENSOR_PRESETS[sensor])
+    return replace(cfg, **values)
+
+
 def synth_intrinsics(cfg: SynthConfig) -> CameraIntrinsics:
     """Pinhole intrinsics of the synthetic camera (no distortion)."""
     return CameraIntrinsics(cfg.width, cfg.height, cfg.fx, cfg.fy, cfg.cx, cfg.cy)
@@ -208,8 +252,15 @@ def _scene_for(cfg: SynthConfig) -> Scene:
 
 def _trajectory(cfg: SynthConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(cfg.n_frames) / cfg.rate_hz
+    return cfg.start_stamp + t, _poses_at(cfg, scene, t)
+
+
+def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
+    """Base poses ``(x, y, theta)`` (M, 3) at times ``t`` (M,) seconds after the first frame."""
+    t = np.asarray(t, dtype=np.float64)
     T, r, v = cfg.duration, cfg._ramp, cfg.speed
     # trapezoidal speed: accelerate over r seconds, cruise, stop over the last r seconds
+    t = np.clip(t, 0.0, T)
     if r > 0:
         s = np.where(t < r, 0.5 * v / r * t ** 2,
                      np.where(t <= T - r, 0.5 * v * r + v * (t - r), v * (T - r) - 0.5 * v / r * (T - t) ** 2))
@@ -229,8 +280,18 @@ def _trajectory(cfg: SynthConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray]
     xy = c + d[:, None] * nrm
     # heading of p(s) = c(s) + d(s) n(s): p' = t (1 - kappa d) + d' n
     theta = wrap_angle(head + np.arctan2(dd, 1.0 - kappa * d))
-    poses = np.column_stack([xy, theta])
-    return cfg.start_stamp + t, poses
+    return np.column_stack([xy, theta])
+
+
+def _twists_at(cfg: SynthConfig, scene: Scene, t: np.ndarray, h: float = 1e-3) -> np.ndarray:
+    """Base_link velocities ``(vx, vy, omega)`` (M, 3) at times ``t`` (M,): m/s and rad/s in
+    base_link axes (REP 103), by central differences of :func:`_poses_at`."""
+    t = np.asarray(t, dtype=np.float64)
+    a, b = _poses_at(cfg, scene, t - h), _poses_at(cfg, scene, t + h)
+    mid = _poses_at(cfg, scene, t)
+    c, s = np.cos(mid[:, 2]), np.sin(mid[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[:, 2] - a[:, 2])]) / (2.0 * h)
 
 
 def synth_trajectory(cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -293,6 +354,20 @@ class SynthRenderer:
         self._img_noise = noise_rng.standard_normal(4 * H * W + (1 << 18), dtype=np.float32)
         self._img_noise *= np.float32(cfg.image_noise)
         self._img_noise += np.float32(0.5)
+        # camera effects: rays in base_link axes (for image motion), the rolling-shutter
+        # time of each row, and the sequence's constant colour-to-depth capture offset
+        self._effects = cfg.exposure_ms > 0 or cfg.readout_ms > 0 or cfg.color_delay_ms > 0 \
+            or cfg.auto_exposure or cfg.flicker > 0
+        #: colour exposure centre minus depth (and ground-truth) instant, seconds: constant for
+        #: the sequence, uniform in +-color_delay_ms (free-running 30 Hz streams)
+        self.color_delay_s = float(np.random.default_rng([int(cfg.seed), 4242]).uniform(-1.0, 1.0)) \
+            * cfg.color_delay_ms * 1e-3
+        if self._effects:
+            self._R_bc = self.mount.T_base_cam[:3, :3]
+            self._ray_base = np.column_stack([self._xn, self._yn, np.ones(H * W, np.float32)]) \
+                @ self._R_bc.T.astype(np.float32)
+            self._row_time = ((v.ravel() / max(H - 1, 1) - 0.5) * cfg.readout_ms * 1e-3).astype(np.float32)
+            self._u, self._v = u.astype(np.float32).ravel(), v.astype(np.float32).ravel()
         self.timings: dict[str, float] = {}
         self._clock = time.perf_counter  # stage timer (a benchmark may swap in process_time)
 
@@ -340,19 +415,22 @@ class SynthRenderer:
         self._light_origin, self._light_res = (x0, y0), res
 
     # ------------------------------------------------------------------------- render
-    def render(self, pose_world_base, index: int = 0, stamp: float = 0.0) -> SynthFrame:
+    def render(self, pose_world_base, index: int = 0, stamp: float = 0.0, twist=None) -> SynthFrame:
         """Render the view from base pose ``(x, y, theta)`` (3,) in the world.
 
         ``index`` selects the frame's noise (with the seed); ``stamp`` is copied into the
-        record. Stage times accumulate in :attr:`timings` (seconds).
+        record. ``twist`` (3,): the base's velocity ``(vx, vy, omega)`` (m/s, rad/s, base_link
+        axes), needed only for motion blur, rolling shutter and colour delay (None = still).
+        Stage times accumulate in :attr:`timings` (seconds).
         """
-        return self._shade(self._cast(pose_world_base), index, stamp)
+        return self._shade(self._cast(pose_world_base), index, stamp, twist)
 
-    def render_stream(self, poses, indices, stamps) -> Iterator[SynthFrame]:
+    def render_stream(self, poses, indices, stamps, twists=None) -> Iterator[SynthFrame]:
         """Render many frames, ray casting frame k + 1 on a worker thread while frame k is shaded.
 
         open3d releases the GIL while it casts, so on two cores this hides most of the
-        ray-casting time. ``poses`` (M, 3), ``indices`` (M,), ``stamps`` (M,).
+        ray-casting time. ``poses`` (M, 3), ``indices`` (M,), ``stamps`` (M,), ``twists``
+        (M, 3) or None (see :meth:`render`).
         """
         from concurrent.futures import ThreadPoolExecutor
 
@@ -365,7 +443,7 @@ class SynthRenderer:
                 cast = nxt.result()
                 if k + 1 < len(poses):
                     nxt = pool.submit(self._cast, poses[k + 1])
-                yield self._shade(cast, indices[k], stamps[k])
+                yield self._shade(cast, indices[k], stamps[k], None if twists is None else twists[k])
 
     def _cast(self, pose_world_base) -> tuple:
         """Ray cast one view: ``(pose, T_world_cam, z (N,) float32, primitive ids (N,) uint32, seconds)``."""
@@ -384,7 +462,7 @@ class SynthRenderer:
         hits = rc.cast_rays(self._rays)
         return pose, T_wc, hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), self._clock() - t0
 
-    def _shade(self, cast: tuple, index: int, stamp: float) -> SynthFrame:
+    def _shade(self, cast: tuple, index: int, stamp: float, twist=None) -> SynthFrame:
         """Colour, depth and ground truth from one :meth:`_cast` result."""
         cfg, tm, f32 = self.cfg, self.timings, np.float32
         H, W = cfg.height, cfg.width
@@ -474,11 +552,14 @@ class SynthRenderer:
         light *= self._vignette[idx]
         colour *= light[:, None]
         buf = self._img_noise  # image noise + 0.5 (rounding), read at a random offset
-        off = int(rng.integers(0, len(buf) - 3 * n_hit))
-        colour += buf[off: off + 3 * n_hit].reshape(n_hit, 3)
-        np.clip(colour, 0.0, 255.0, out=colour)
-        color = np.zeros((H, W, 3), np.uint8)
-        color.reshape(-1).view("V3")[idx] = colour.astype(np.uint8).view("V3").ravel()
+        if self._effects:
+            color = self._camera(colour, idx, z, twist, rng, buf)
+        else:
+            off = int(rng.integers(0, len(buf) - 3 * n_hit))
+            colour += buf[off: off + 3 * n_hit].reshape(n_hit, 3)
+            np.clip(colour, 0.0, 255.0, out=colour)
+            color = np.zeros((H, W, 3), np.uint8)
+            color.reshape(-1).view("V3")[idx] = colour.astype(np.uint8).view("V3").ravel()
         t6 = self._clock()
 
         # ---------------------------------------------------------------------- depth
@@ -501,6 +582,66 @@ class SynthRenderer:
             tm[name] = tm.get(name, 0.0) + dt
         tm["frames"] = tm.get("frames", 0) + 1
         return SynthFrame(rgbd, T_wc, pose.copy(), truth)
+
+    def _camera(self, colour: np.ndarray, idx: np.ndarray, z: np.ndarray, twist, rng, noise: np.ndarray) -> np.ndarray:
+        """The colour camera's view of the scene radiance ``colour`` (n_hit, 3) at pixels ``idx``.
+
+        The radiance image is rendered at the depth (and ground-truth) instant t. Pixel q
+        of the colour image integrates it over the shutter interval, which opens at
+        ``t + delay + row_time(q) - exposure / 2`` (global colour-to-depth offset, rolling
+        shutter), approximated to first order by the image motion ``flow(q)`` (px/s) that
+        the base velocity ``twist`` induces: ``I_c(q) = mean_s I_t(q - s * flow(q))``.
+        Then auto-exposure scales the frame to a mean grey of ``ae_target`` (the camera
+        meters at 30 Hz, so it has settled by the next 10 Hz frame), mains flicker
+        multiplies it by ``1 + flicker * N(0, 1)``, and sensor noise is added.
+        Returns (H, W, 3) uint8.
+        """
+        import cv2
+
+        cfg, f32 = self.cfg, np.float32
+        H, W = cfg.height, cfg.width
+        img = np.zeros((H * W, 3), f32)
+        img[idx] = colour
+        img = img.reshape(H, W, 3)
+        exposure = cfg.exposure_ms * 1e-3
+        if twist is not None and (exposure > 0 or cfg.readout_ms > 0 or self.color_delay_s != 0.0):
+            vx, vy, om = (float(a) for a in np.asarray(twist, dtype=np.float64).reshape(3))
+            zz = np.where(np.isfinite(z), z, f32(0.0)).astype(f32)
+            zz[~(zz > 0)] = 0.0
+            # world-fixed point in the moving base frame: dX/dt = -v - omega z_hat x X
+            Xb = self._ray_base * zz[:, None]
+            Xb += self.mount.T_base_cam[:3, 3].astype(f32)
+            dxb = Xb[:, 1] * f32(om) - f32(vx)
+            dyb = Xb[:, 0] * f32(-om) - f32(vy)
+            R = self._R_bc  # X_cam = R_bc^T (X_base - t_bc)
+            dX = dxb * f32(R[0, 0]) + dyb * f32(R[1, 0])
+            dY = dxb * f32(R[0, 1]) + dyb * f32(R[1, 1])
+            dZ = dxb * f32(R[0, 2]) + dyb * f32(R[1, 2])
+            inv_z = np.divide(f32(1.0), zz, out=np.zeros_like(zz), where=zz > 0)
+            du = (dX - self._xn * dZ) * inv_z * f32(cfg.fx)
+            dv = (dY - self._yn * dZ) * inv_z * f32(cfg.fy)
+            speed = float(np.sqrt(np.max(du * du + dv * dv))) if len(du) else 0.0
+            K = int(np.clip(math.ceil(speed * exposure) + 1, 1, 9)) if exposure > 0 else 1
+            t0 = self._row_time + f32(self.color_delay_s)
+            acc = np.zeros_like(img)
+            for s in (np.linspace(-0.5, 0.5, K) * exposure if K > 1 else [0.0]):
+                tau = t0 + f32(s)
+                mx = (self._u - tau * du).reshape(H, W)
+                my = (self._v - tau * dv).reshape(H, W)
+                acc += cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            img = acc
+            img *= f32(1.0 / K)
+        gain = 1.0
+        if cfg.auto_exposure:
+            gain = cfg.ae_target / max(float(img.mean()), 1.0)
+        if cfg.flicker > 0:
+            gain *= max(1.0 + cfg.flicker * float(rng.standard_normal()), 0.05)
+        if gain != 1.0:
+            img *= f32(gain)
+        off = int(rng.integers(0, len(noise) - 3 * H * W))
+        img += noise[off: off + 3 * H * W].reshape(H, W, 3)
+        np.clip(img, 0.0, 255.0, out=img)
+        return img.astype(np.uint8)
 
     def _depth(self, z_true: np.ndarray, cos_full: np.ndarray, rng) -> np.ndarray:
         """Kinect v2-like measured depth (H, W) float32 from the true z (N,) float32."""
@@ -528,7 +669,25 @@ class SynthRenderer:
         if not cfg.depth_noise:
             return d
         if cfg.depth_edge_holes:
-            d[_edge_holes(z_true.reshape(H, W), rng)] = 0.0
+            fly: list | None = [] if cfg.flying_pixels > 0 else None
+            zt = z_true.reshape(H, W)
+            d[_edge_holes(zt, rng, fly)] = 0.0
+            if fly:
+                # flying pixels: the far-side pixel mixes the near and far returns
+                rr = np.concatenate([f[0] for f in fly])
+                cc = np.concatenate([f[1] for f in fly])
+                zn = np.concatenate([f[2] for f in fly])
+                pick = rng.random(len(rr)) < cfg.flying_pixels
+                rr, cc, zn = rr[pick], cc[pick], zn[pick]
+                zf = zt[rr, cc]
+                ok = (zf > 0) & (zn < 1e3)
+                rr, cc, zn, zf = rr[ok], cc[ok], zn[ok], zf[ok]
+                w = rng.random(len(rr)).astype(f32)
+                mix = w * zn + (f32(1.0) - w) * zf
+                mix += (f32(cfg.depth_sigma0) + f32(cfg.depth_sigma2) * mix * mix) * rng.standard_normal(len(mix)).astype(f32)
+                mix = np.rint(mix * f32(1000.0)) / f32(1000.0)
+                mix[(mix < f32(cfg.depth_min)) | (mix > f32(cfg.depth_max))] = 0.0
+                d[rr, cc] = mix
         if cfg.dropout_rate > 0:
             d.reshape(-1)[rng.integers(0, N, rng.poisson(cfg.dropout_rate * N))] = 0.0
         if cfg.dropout_blobs > 0:
@@ -560,12 +719,14 @@ class SynthRenderer:
         }
 
 
-def _edge_holes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def _edge_holes(z: np.ndarray, rng: np.random.Generator, flying: list | None = None) -> np.ndarray:
     """Mask (H, W) of pixels lost at depth discontinuities.
 
     A jump between neighbours larger than ``0.02 + 0.03 z^2`` m (well above the
     neighbour-to-neighbour change of a slanted floor) removes the far-side pixel, and
     with probability 1/2 the next one outward as well (one or two pixels, as Kinect v2).
+    If ``flying`` is a list, ``(rows, cols, z_near)`` of the far-side pixels next to a
+    jump are appended to it (the pixels a time-of-flight camera may return as mixtures).
     """
     f32 = np.float32
     H, W = z.shape
@@ -581,6 +742,9 @@ def _edge_holes(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         r, c = np.nonzero(np.abs(dz) > thr)
         sgn = np.where(dz[r, c] > 0, 1, -1)  # +1: b is the far side, -1: a is
         far = np.where(sgn > 0, 1, 0)
+        if flying is not None:
+            rr, cc = (r + far, c) if axis == 0 else (r, c + far)
+            flying.append((rr, cc, np.minimum(a[r, c], b[r, c])))
         for k, keep in ((far, None), (far + sgn, rng.random(len(r)) < 0.5)):  # 1 or 2 pixels
             rr, cc = (r + k, c) if axis == 0 else (r, c + k)
             ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
@@ -660,7 +824,8 @@ def render_sequence(cfg: SynthConfig, frames: Iterable[int] | None = None) -> It
         raise IndexError(f"frame {bad[0]} is outside the sequence of {cfg.n_frames} frames")
     renderer = SynthRenderer(cfg)
     stamps, poses = _trajectory(cfg, renderer.scene)
-    yield from renderer.render_stream(poses[idx], idx, stamps[idx])
+    twists = _twists_at(cfg, renderer.scene, stamps[idx] - cfg.start_stamp)
+    yield from renderer.render_stream(poses[idx], idx, stamps[idx], twists)
 
 
 def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfig) -> None:
@@ -707,7 +872,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     # encoders and most numpy work release the GIL)
     with writer, ThreadPoolExecutor(max_workers=1) as pool:
         pending = None
-        for i, f in enumerate(renderer.render_stream(poses, np.arange(cfg.n_frames), stamps)):
+        twists = _twists_at(cfg, renderer.scene, stamps - cfg.start_stamp)
+        for i, f in enumerate(renderer.render_stream(poses, np.arange(cfg.n_frames), stamps, twists)):
             T_wc[i] = f.T_world_cam
             if pending is not None:
                 pending.result()

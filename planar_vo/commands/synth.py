@@ -33,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth-encoding", default="png", help="png | compressedDepth | 16UC1 | 32FC1 (default: png)")
     parser.add_argument("--no-depth-noise", action="store_true",
                         help="ideal depth: no noise, quantisation, holes or dropouts")
+    parser.add_argument("--sensor", default="ideal",
+                        help="ideal | kinect2: kinect2 adds the Kinect v2 colour camera's auto-exposure, motion "
+                             "blur, rolling shutter, unsynchronised colour/depth and flicker, and flying depth "
+                             "pixels (default: ideal)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -57,7 +61,7 @@ def main(args: argparse.Namespace) -> int:
     from planar_vo.errors import ConfigError, InputError
     from planar_vo.io.codecs import COLOR_ENCODINGS, DEPTH_ENCODINGS
     from planar_vo.io.mcap_writer import PROFILES
-    from planar_vo.io.synth import SynthConfig, write_synth_log
+    from planar_vo.io.synth import SENSOR_PRESETS, SynthConfig, with_sensor, write_synth_log
 
     if args.profile not in PROFILES:
         raise InputError(f"--profile {args.profile!r}: use one of {', '.join(PROFILES)}")
@@ -65,11 +69,14 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(f"--color-encoding {args.color_encoding!r}: use one of {', '.join(COLOR_ENCODINGS)}")
     if args.depth_encoding not in DEPTH_ENCODINGS:
         raise InputError(f"--depth-encoding {args.depth_encoding!r}: use one of {', '.join(DEPTH_ENCODINGS)}")
+    if args.sensor not in SENSOR_PRESETS:
+        raise InputError(f"--sensor {args.sensor!r}: use one of {', '.join(SENSOR_PRESETS)}")
     width, height = _parse_size(args.size)
     try:
         cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=args.frames, rate_hz=args.rate,
                           speed=args.speed, texture=args.texture, pitch_deg=args.pitch_deg,
                           roll_deg=args.roll_deg, cam_height=args.height, depth_noise=not args.no_depth_noise)
+        cfg = with_sensor(cfg, args.sensor)
         if (width, height) != (cfg.width, cfg.height):
             cfg = cfg.at_resolution(width, height)
     except ConfigError as exc:
