@@ -106,6 +106,11 @@ class FeatureConfig:
     klt_min_eig: float = 2e-3        # LK's minimum eigenvalue (per pixel^2, grey levels / 255)
     fb_check: bool = True            # forward-backward consistency (klt)
     fb_max_px: float = 1.0
+    #: Auto-exposure and mains flicker change the image gain between frames, which biases
+    #: LK's brightness-constancy fit; when the tracked corners' local brightness changed by
+    #: more than this fraction, the current image is rescaled and tracked again (klt).
+    #: 0 disables.
+    gain_tolerance: float = 0.01
     orb_features: int = 800
     orb_max_hamming: int = 64
     depth_window: int = 1            # depth from a (2w+1)^2 neighbourhood

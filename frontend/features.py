@@ -4,8 +4,9 @@ Two interchangeable methods (``FeatureConfig.method``):
 
 * ``"klt"``: Shi-Tomasi corners tracked with pyramidal Lucas-Kanade (forward-backward
   checked); survivors are kept and the set is topped up with new corners only where the
-  image has none, so most frames skip detection. The image pyramid of a frame is built
-  once and reused as the "previous" pyramid of the next frame.
+  image has none, so most frames skip detection. A gain change between the frames
+  (auto-exposure, flicker), measured at the tracked corners, is undone before a second
+  tracking pass, since LK assumes constant brightness.
 * ``"orb"``: ORB keypoints and descriptors, mutual nearest neighbours in Hamming distance.
 
 Pixel positions are undistorted with the calibration (``cv2.undistortPoints``, iterated to convergence, when the
@@ -123,10 +124,13 @@ class FeatureTracker:
             self._orb = cv2.ORB_create(nfeatures=c.orb_features, fastThreshold=12)
             self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
         self.last_detected = 0  # corners newly detected in the last frame (diagnostics)
+        self.last_gain = 1.0    # brightness ratio to the previous frame (diagnostics)
+        self._prev_box = self._box = None  # 25 x 25 box-filtered previous / current image
 
     def reset(self) -> None:
         self._prev = None
         self._prev_pyr = None
+        self._prev_box = self._box = None
 
     def process(self, gray: np.ndarray, depth: np.ndarray) -> tuple[FeatureSet, np.ndarray]:
         """Associate ``gray`` (H, W) uint8 with the previous frame; ``depth`` (H, W) float32 m."""
@@ -151,6 +155,17 @@ class FeatureTracker:
                                                  maxLevel=c.klt_levels, criteria=self._crit,
                                                  minEigThreshold=c.klt_min_eig)
             ok = st.reshape(-1) == 1
+            gain = self._gain(gray, p0.reshape(-1, 2)[ok], p1.reshape(-1, 2)[ok]) if c.gain_tolerance > 0 else 1.0
+            self.last_gain = gain
+            if abs(gain - 1.0) > c.gain_tolerance:
+                # LK has no gain term: bring this image to the previous one's brightness and
+                # track again from the first result.
+                pyr = cv2.convertScaleAbs(gray, alpha=1.0 / gain)
+                p1, st, _ = cv2.calcOpticalFlowPyrLK(self._prev_pyr, pyr, p0, p1, winSize=self._win,
+                                                     maxLevel=c.klt_levels, criteria=self._crit,
+                                                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                                                     minEigThreshold=c.klt_min_eig)
+                ok = st.reshape(-1) == 1
             if c.fb_check and ok.any():
                 # Backward from the forward result, seeded with the forward motion.
                 p0b, stb, _ = cv2.calcOpticalFlowPyrLK(pyr, self._prev_pyr, p1, p0.copy(), winSize=self._win,
@@ -169,8 +184,29 @@ class FeatureTracker:
         self.last_detected = len(new_px)
         px = np.vstack([kept_px, new_px]) if len(new_px) else kept_px
         cur = self._make_set(px, depth)
-        self._prev, self._prev_pyr = cur, pyr
+        # the next frame is tracked against this one as captured (its gain is relative to it)
+        self._prev, self._prev_pyr = cur, gray
+        self._prev_box, self._box = self._box, None
         return cur, matches
+
+    def _gain(self, gray: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> float:
+        """Brightness ratio current / previous: the median over tracked corners (K, 2) of
+        the ratio of their 25 x 25 neighbourhood means (wide enough that LK's own
+        gain-induced position bias hardly moves them), sampled bilinearly (1.0 with fewer
+        than 8 usable corners)."""
+        if len(p0) < 8:
+            return 1.0
+        if self._prev_box is None:
+            self._prev_box = cv2.boxFilter(self._prev_pyr, cv2.CV_32F, (25, 25))
+        box = self._box = cv2.boxFilter(gray, cv2.CV_32F, (25, 25))
+        a = cv2.remap(self._prev_box, p0[None, :, 0].astype(np.float32), p0[None, :, 1].astype(np.float32),
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
+        b = cv2.remap(box, p1[None, :, 0].astype(np.float32), p1[None, :, 1].astype(np.float32),
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
+        use = (a > 8) & (a < 247) & (b > 8) & (b < 247)  # saturated or black: no information
+        if use.sum() < 8:
+            return 1.0
+        return float(np.median(b[use] / a[use]))
 
     def _detect_klt(self, gray, existing):
         """New Shi-Tomasi corners away from ``existing`` (K, 2), up to ``max_corners`` in all."""

@@ -102,3 +102,27 @@ def test_bad_input():
         tr.process(np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640), np.float32))
     with pytest.raises(ValueError, match="method"):
         FeatureTracker(K, FeatureConfig(method="sift"))
+
+
+@pytest.mark.parametrize("gain", [0.9, 1.12])
+def test_klt_compensates_a_gain_change(gain):
+    """Auto-exposure between frames: LK assumes constant brightness, the tracker rescales."""
+    rng = np.random.default_rng(13)
+    img0 = _texture(rng)
+    H = np.array([[1.0, 0.0, 4.3], [0.0, 1.0, -2.7], [0.0, 0.0, 1.0]])
+    img1 = np.clip(_warp(img0, H).astype(np.float64) * gain, 0, 255).astype(np.uint8)
+    depth = np.full(img0.shape, 2.0, np.float32)
+    errs = {}
+    for tol in (0.0, 0.01):
+        tr = FeatureTracker(K, FeatureConfig(method="klt", gain_tolerance=tol))
+        f0, _ = tr.process(img0, depth)
+        f1, m = tr.process(img1, depth)
+        p0, p1 = f0.px[m[:, 0]].astype(np.float64), f1.px[m[:, 1]].astype(np.float64)
+        pred = cv2.perspectiveTransform(p0.reshape(-1, 1, 2), H).reshape(-1, 2)
+        inside = (pred[:, 0] > 30) & (pred[:, 0] < 610) & (pred[:, 1] > 30) & (pred[:, 1] < 450)
+        errs[tol] = (np.linalg.norm(pred - p1, axis=1)[inside], len(m))
+    assert tr.last_gain == pytest.approx(gain, abs=0.01)
+    comp, plain = errs[0.01], errs[0.0]
+    assert np.median(comp[0]) < 0.05
+    assert np.mean(comp[0] ** 2) < 0.5 * np.mean(plain[0] ** 2)
+    assert comp[1] >= plain[1]
