@@ -101,6 +101,19 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     return out
 
 
+def _coarse_means(gray: np.ndarray) -> np.ndarray:
+    """Local means (H/4, W/4) float32: a 7 x 7 box over the 4 x 4-averaged image."""
+    h, w = gray.shape
+    small = cv2.resize(gray, (max(w // 4, 1), max(h // 4, 1)), interpolation=cv2.INTER_AREA)
+    return cv2.boxFilter(small, cv2.CV_32F, (7, 7))
+
+
+def _sample_quarter(img: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Bilinear samples (K,) of a quarter-size image at full-resolution pixels ``px`` (K, 2)."""
+    q = (px.astype(np.float32) + 0.5) * 0.25 - 0.5
+    return cv2.remap(img, q[None, :, 0], q[None, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
+
+
 class FeatureTracker:
     """Frame-to-frame corner association for one camera.
 
@@ -125,7 +138,7 @@ class FeatureTracker:
             self._bf = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
         self.last_detected = 0  # corners newly detected in the last frame (diagnostics)
         self.last_gain = 1.0    # brightness ratio to the previous frame (diagnostics)
-        self._prev_box = self._box = None  # 25 x 25 box-filtered previous / current image
+        self._prev_box = self._box = None  # coarse local means of the previous / current image
 
     def reset(self) -> None:
         self._prev = None
@@ -191,18 +204,16 @@ class FeatureTracker:
 
     def _gain(self, gray: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> float:
         """Brightness ratio current / previous: the median over tracked corners (K, 2) of
-        the ratio of their 25 x 25 neighbourhood means (wide enough that LK's own
-        gain-induced position bias hardly moves them), sampled bilinearly (1.0 with fewer
-        than 8 usable corners)."""
+        the ratio of their ~28 x 28 neighbourhood means (wide enough that LK's own
+        gain-induced position bias hardly moves them; 7 x 7 box on a quarter-size image),
+        sampled bilinearly. 1.0 with fewer than 8 usable corners."""
         if len(p0) < 8:
             return 1.0
         if self._prev_box is None:
-            self._prev_box = cv2.boxFilter(self._prev_pyr, cv2.CV_32F, (25, 25))
-        box = self._box = cv2.boxFilter(gray, cv2.CV_32F, (25, 25))
-        a = cv2.remap(self._prev_box, p0[None, :, 0].astype(np.float32), p0[None, :, 1].astype(np.float32),
-                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
-        b = cv2.remap(box, p1[None, :, 0].astype(np.float32), p1[None, :, 1].astype(np.float32),
-                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
+            self._prev_box = _coarse_means(self._prev_pyr)
+        box = self._box = _coarse_means(gray)
+        a = _sample_quarter(self._prev_box, p0)
+        b = _sample_quarter(box, p1)
         use = (a > 8) & (a < 247) & (b > 8) & (b < 247)  # saturated or black: no information
         if use.sum() < 8:
             return 1.0
