@@ -19,7 +19,10 @@ Sensor model (Kinect v2-like; all switchable in :class:`SynthConfig`):
   (``dropout_rate``) and a few small dropout blobs;
 * colour: texture x world-fixed shading (ambient + a fixed sky light + ceiling lamp
   pools, Lambertian, so brightness is constant across views), mild vignetting, Gaussian
-  image noise of ``image_noise`` grey levels.
+  image noise of ``image_noise`` grey levels;
+* optional camera effects, off by default (:func:`with_sensor` ``"kinect2"`` turns them
+  on): motion blur, rolling shutter and a colour-to-depth time offset synthesised from
+  each pixel's image motion, auto-exposure, flicker, and flying pixels at depth edges.
 
 Everything is deterministic for ``seed``: the scene and textures come from it, and each
 frame's noise from ``(seed, frame index)``, so any subset of frames renders identically.
@@ -210,9 +213,10 @@ class SynthFrame:
 #: Named sensor models for :func:`with_sensor`. ``ideal``: the defaults (a global-shutter
 #: colour camera synchronised with the depth camera, fixed exposure). ``kinect2``: the
 #: Kinect v2's free-running colour camera as logged by iai_kinect2: auto-exposure, a
-#: 20 ms exposure (its indoor setting, frame rate kept at 30 Hz), a rolling-shutter
+#: 20 ms exposure (dim indoor light; at most 33 ms keeps 30 Hz), a rolling-shutter
 #: readout, colour and depth streams that are not synchronised (a constant offset of up
-#: to half a 30 Hz period), mains flicker, and flying pixels at depth edges.
+#: to half a 30 Hz period), mains flicker, and flying pixels at depth edges. The values
+#: are plausible choices, not a calibration of one device.
 SENSOR_PRESETS: dict[str, dict] = {
     "ideal": {},
     "kinect2": {"exposure_ms": 20.0, "readout_ms": 15.0, "color_delay_ms": 16.0, "auto_exposure": True,
