@@ -610,8 +610,7 @@ class SynthRenderer:
         exposure = cfg.exposure_ms * 1e-3
         if twist is not None and (exposure > 0 or cfg.readout_ms > 0 or self.color_delay_s != 0.0):
             vx, vy, om = (float(a) for a in np.asarray(twist, dtype=np.float64).reshape(3))
-            zz = np.where(np.isfinite(z), z, f32(0.0)).astype(f32)
-            zz[~(zz > 0)] = 0.0
+            zz = np.where(np.isfinite(z) & (z > 0), z, f32(0.0)).astype(f32)  # 0 where the ray missed
             # world-fixed point in the moving base frame: dX/dt = -v - omega z_hat x X
             Xb = self._ray_base * zz[:, None]
             Xb += self.mount.T_base_cam[:3, 3].astype(f32)
