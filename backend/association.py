@@ -70,6 +70,8 @@ class ManhattanAssociator:
         self._min_var = math.radians(config.manhattan_min_sigma_deg) ** 2
         self._gate_max = math.radians(config.gate_max_deg)
         self._cand_gate = math.radians(config.new_frame_gate_deg)
+        self._same_frame = math.radians(config.same_frame_deg)
+        self.drift_associations = 0    # associated beyond the sigma gate by same_frame_deg
 
     # ------------------------------------------------------------------ state
     @property
@@ -136,6 +138,7 @@ class ManhattanAssociator:
         # After a bridged step the heading itself is uncertain: widen the degree cap with it
         # (never past 40 deg, where the 90-degree branch becomes ambiguous).
         cap = min(max(self._gate_max, 3.0 * math.sqrt(P[0, 0])), math.radians(40.0))
+        nearest, nearest_r = None, math.inf
         for j in range(self.n_frames):
             if j in used:
                 continue
@@ -146,6 +149,13 @@ class ManhattanAssociator:
             u = abs(r) / math.sqrt(s)
             if abs(r) <= cap and u <= self.cfg.gate_sigmas and u < best_u:
                 best, best_u, best_meas = j, u, yaw + b * HALF_PI
+            if abs(r) < nearest_r:
+                nearest, nearest_r, nearest_meas = j, abs(r), yaw + b * HALF_PI
+        # Local frames of one building are far apart; one a few degrees from a known frame
+        # is that frame seen with a drifted heading (steps biased or bridged), not a new one.
+        if best is None and nearest is not None and nearest_r <= self._same_frame:
+            self.drift_associations += 1
+            return nearest, nearest_meas
         return best, best_meas
 
     def _update(self, j: int, measured: float, var: float) -> None:

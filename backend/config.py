@@ -73,6 +73,10 @@ class BackendConfig:
     #: "any": every unmatched observation may start a frame; "dominant": only the
     #: frame's dominant (first) observation; "never": only the frames already known.
     new_frame_policy: Literal["any", "dominant", "never"] = "any"
+    #: An observation within this of a known frame (modulo 90 deg) joins it even beyond
+    #: the sigma gate: local frames of one building differ by more, so the chained
+    #: heading drifted. Must stay below half the smallest angle between two corridors.
+    same_frame_deg: float = 8.0
     new_frame_min_observations: int = 3
     new_frame_window: int = 15               # frames
     new_frame_gate_deg: float = 3.0          # consistency of a candidate's observations
@@ -101,6 +105,7 @@ class BackendConfig:
         positive = ("prior_sigma_xy", "prior_sigma_theta_deg", "step_robust_parameter",
                     "manhattan_robust_parameter", "bridged_sigma_xy", "bridged_sigma_theta_deg",
                     "manhattan_min_sigma_deg", "manhattan_tie_sigma_deg", "gate_sigmas", "gate_max_deg", "new_frame_gate_deg",
+                    "same_frame_deg",
                     "isam2_relinearize_xy", "isam2_relinearize_theta_deg")
         for name in positive:
             if not getattr(self, name) > 0:
@@ -114,5 +119,8 @@ class BackendConfig:
                      "isam2_relinearize_skip"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.same_frame_deg >= 22.5:
+            raise ValueError(f"same_frame_deg must be < 22.5 (frames closer than 45 deg are told apart), "
+                             f"got {self.same_frame_deg}")
         if self.gate_max_deg >= 45.0:
             raise ValueError(f"gate_max_deg must be < 45 (the 90-degree ambiguity), got {self.gate_max_deg}")

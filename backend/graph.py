@@ -20,7 +20,7 @@ from planar_vo.backend.association import ManhattanAssociator
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor, manhattan_tie,
                                        manhattan_value, robust_noise, robust_weight, step_noise)
-from planar_vo.frontend.types import STATUS_BRIDGED, FrameResult
+from planar_vo.frontend.types import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
 from planar_vo.geometry import se2_compose, wrap_angle, wrap_quarter
 
 __all__ = ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"]
@@ -122,7 +122,7 @@ class _GraphBuilder:
             info = self.step_information(
                 _check_information(result.step.information, f"FrameResult {result.index} step.information"),
                 result.step.status)
-            kind = "bridged" if result.step.status == STATUS_BRIDGED else "step"
+            kind = result.step.status if result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL) else "step"
             graph.add(self.relative_factor(k - 1, k, p, info, kind))
             self.raw.append(se2_compose(self.raw[-1], p))
             self.assoc.predict(float(p[2]), float(np.linalg.inv(info)[2, 2]))
@@ -239,6 +239,7 @@ class _GraphBuilder:
             "rejected": int(a["rejected"]),
             "ignored": int(a["ignored"]),
             "pending": self.assoc.n_pending,
+            "drift_associations": self.assoc.drift_associations,
         }
 
 

@@ -80,10 +80,14 @@ class ManhattanConfig:
     """Grouping vertical planes into local Manhattan frames and tracking them."""
 
     group_tol_deg: float = 2.5       # normals parallel/perpendicular within this
+    group_sigmas: float = 3.0        # ... and within this many combined sigmas
     min_sigma_deg: float = 0.15      # floor on a frame's yaw sigma (model error, levelling)
     track_gate_deg: float = 8.0      # association gate after rotation prediction
     max_missed: int = 15             # frames a track survives unseen
     min_score: float = 0.02          # frames with less wall area are not reported
+    #: Observations at most this uncertain become their track's reference heading for
+    #: the direction-plus-point yaw; weaker ones leave the carried reference in place.
+    ref_max_sigma_deg: float = 0.35
 
     def __post_init__(self) -> None:
         _positive("manhattan", group_tol_deg=self.group_tol_deg, min_sigma_deg=self.min_sigma_deg,
@@ -127,14 +131,32 @@ class FeatureConfig:
 class OdometryConfig:
     """Estimator choice, acceptance and bridging."""
 
-    min_inliers: int = 20            # fewer inliers: the estimator failed
+    min_inliers: int = 20            # 2-point: fewer inliers and the estimator failed
     min_inlier_ratio: float = 0.3
     min_scale_inliers: int = 12      # 2-point: matches with depth that agree on the metric scale
+    #: Direction-plus-point needs only the translation from the matches (the yaw comes from
+    #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
+    dpp_min_inliers: int = 6
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
-    dpp_min_score: float = 0.05      # local frames covering less image area (in both views) are not used
+    dpp_min_score: float = 0.08      # local frames covering less image area (in both views) are not used
     dpp_min_track_age: int = 3       # nor frames seen for fewer consecutive frames (walls entering view)
-    fuse_yaw: bool = True            # check and fuse the Manhattan yaw with the 2-point yaw
+    #: The 2-point yaw may veto a Manhattan yaw (a wrong association), never bend it: the
+    #: veto needs a disagreement beyond this many combined sigmas and this many degrees.
+    dpp_veto_sigmas: float = 4.0
+    dpp_veto_min_deg: float = 2.0
+    #: Partial steps: a wall seen in both frames fixes the translation along its normal
+    #: (d2 - d1 = n2 . t); walls must match within these after the predicted motion.
+    wall_match_deg: float = 3.0
+    wall_match_m: float = 0.15
+    wall_min_support: float = 0.03   # image fraction of a wall used for translation
+    wall_min_sigma_m: float = 0.005  # floor on a wall offset's sigma (depth bias, model error)
+    #: Inliers along one image line (smaller / larger principal spread below this) do not
+    #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
+    min_inlier_spread: float = 0.1
+    #: Walls farther than this do not fix translations: Kinect v2 depth ends at 4.5 m, and
+    #: a plane near the cut-off keeps only the points noise brought nearer (7-11 cm bias).
+    wall_max_offset_m: float = 4.0
     planarity_check: bool = True     # fit a 6-DoF motion on steps into frames without a floor, to judge planarity
     ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
     ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx

@@ -31,8 +31,9 @@ class LocalFrame:
     ``heading``: rad in [-pi/4, pi/4), in the levelled camera's 2-D frame. ``sigma``: its
     standard deviation (rad). ``score``: image-area fraction of its walls.
     ``walls``: indices of its walls in the input list. ``track_id``: set by the tracker.
-    ``prev_heading``: the same track's heading in the previous frame, when it was seen
-    there (for the direction-plus-point yaw), else None. ``age``: consecutive frames the
+    ``prev_heading``: the track's reference heading carried into the previous frame (for
+    the direction-plus-point yaw, eq. 1), else None for a new track; ``prev_sigma`` its
+    std and ``prev_score`` the score it was observed with. ``age``: consecutive frames the
     track has been seen (a wall entering the view gives biased headings at first).
     """
 
@@ -42,6 +43,11 @@ class LocalFrame:
     walls: list[int] = field(default_factory=list)
     track_id: int = -1
     prev_heading: float | None = None
+    prev_sigma: float = math.inf  # std (rad) of prev_heading: its observation and the steps it was carried
+    prev_score: float = 0.0       # score of the observation prev_heading comes from
+    #: the track's heading in the previous frame (observed there, else carried): the
+    #: frame-to-frame rotation the 3-D matches see, whatever the chain's earlier errors
+    prev_local: float | None = None
     age: int = 1  # consecutive frames the track has been seen, this one included
 
 
@@ -49,10 +55,10 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
     """Group vertical planes into local Manhattan frames, dominant (highest score) first.
 
     Greedy over walls by decreasing area: a wall joins the first frame whose heading is
-    within ``group_tol_deg`` (modulo 90 degrees), else opens a new one. A frame's heading is
-    the area-weighted mean of its walls' (wrapped) headings; its sigma combines the
-    propagated fit sigma and the walls' weighted scatter, floored at ``min_sigma_deg``
-    (levelling and model errors the fit does not see).
+    within ``group_tol_deg`` (modulo 90 degrees) and within ``group_sigmas`` of their
+    combined sigmas, else opens a new one. A frame's heading and sigma come from
+    :func:`_mean_heading`, floored at ``min_sigma_deg`` (levelling and model errors the
+    fit does not see).
     """
     c = config or ManhattanConfig()
     tol = math.radians(c.group_tol_deg)
@@ -60,16 +66,21 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
     order = sorted(range(len(walls)), key=lambda i: -walls[i].support)
     groups: list[list[int]] = []
     centres: list[float] = []
+    sigmas: list[float] = []
     for i in order:
         h = float(wrap_quarter(walls[i].yaw))
         for g, (members, centre) in enumerate(zip(groups, centres)):
-            if abs(float(wrap_quarter(h - centre))) < tol:
+            d = abs(float(wrap_quarter(h - centre)))
+            # within the tolerance and consistent with the walls already in (largest
+            # first): a box or door 2 deg off the corridor is its own frame, not noise
+            if d < tol and d <= c.group_sigmas * math.hypot(walls[i].yaw_sigma, sigmas[g]):
                 members.append(i)
-                centres[g] = _mean_heading([walls[j] for j in members], centre, floor_sigma)[0]
+                centres[g], sigmas[g] = _mean_heading([walls[j] for j in members], centre, floor_sigma)
                 break
         else:
             groups.append([i])
             centres.append(h)
+            sigmas.append(max(walls[i].yaw_sigma, floor_sigma))
     frames = []
     for members, centre in zip(groups, centres):
         ws = [walls[j] for j in members]
@@ -81,16 +92,22 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
 
 
 def _mean_heading(walls: list[Plane], ref: float, floor_sigma: float) -> tuple[float, float]:
-    """Area-weighted mean heading near ``ref`` and its sigma (fit sigma + walls' scatter)."""
+    """Heading near ``ref`` from the walls' headings, weighted by their own sigmas, and its
+    sigma, inflated by the walls' scatter when they disagree beyond those sigmas.
+
+    A wall's ``yaw_sigma`` carries a systematic term that grows as its angular extent
+    shrinks, so a small box face or a far patch cannot outvote a long wall; weighting by
+    area instead let such patches (2 deg off, 1-3 % of the image) pull the heading and
+    inflate its sigma tenfold.
+    """
     d = np.array([float(wrap_quarter(w.yaw - ref)) for w in walls])
-    # Area weights (Sec. 2.1 scores frames by area): fit sigmas of thousands of pixels are
-    # tiny and would let a small box face outvote a wall.
-    wt = np.array([w.support for w in walls])
-    wt = wt / wt.sum()
-    mean = float((wt * d).sum())
-    fit_var = float((wt ** 2 * np.array([w.yaw_sigma for w in walls]) ** 2).sum())
-    scatter_var = float((wt * (d - mean) ** 2).sum()) if len(walls) > 1 else 0.0
-    return ref + mean, max(math.sqrt(fit_var + scatter_var), floor_sigma)
+    wt = 1.0 / np.maximum(np.array([w.yaw_sigma for w in walls]), 1e-6) ** 2
+    mean = float((wt * d).sum() / wt.sum())
+    var = 1.0 / float(wt.sum())
+    if len(walls) > 1:
+        chi2 = float((wt * (d - mean) ** 2).sum())
+        var *= max(1.0, chi2 / (len(walls) - 1))
+    return ref + mean, max(math.sqrt(var), floor_sigma)
 
 
 @dataclass
@@ -100,6 +117,12 @@ class _Track:
     last_seen: int          # frame counter
     missed: int = 0
     age: int = 1            # consecutive frames seen
+    # Reference for the step yaw: the last good observation, carried into the latest
+    # frame by the steps since (their yaw variances summed in ref_var).
+    ref_heading: float = 0.0
+    ref_sigma: float = math.inf
+    ref_score: float = 0.0
+    ref_var: float = 0.0
 
 
 class ManhattanTracker:
@@ -127,9 +150,11 @@ class ManhattanTracker:
         free = list(self._tracks)
         for f in frames:
             best, best_err = None, gate
-            for t in free:
+            # tracks seen in the previous frame first: a carried one a degree away (a wall
+            # group that split off for a while) must not take over the track in view
+            for t in sorted(free, key=lambda t: t.missed):
                 err = abs(float(wrap_quarter(f.heading - (t.heading - yaw_prior))))
-                if err < best_err:
+                if err < best_err and (best is None or t.missed == best.missed):
                     best, best_err = t, err
             if best is None:
                 f.track_id, f.prev_heading = self._next_id, None
@@ -138,12 +163,22 @@ class ManhattanTracker:
             free.remove(best)
             f.track_id = best.id
             consecutive = best.last_seen == self._frame - 1
-            f.prev_heading = best.heading if consecutive else None
+            # The yaw telescopes along the track: measured against its reference, the
+            # chained heading follows the Manhattan frame across frames where the step
+            # came from elsewhere (their errors are in ref_var, hence in prev_sigma).
+            f.prev_local = best.heading
+            if math.isfinite(best.ref_sigma):
+                f.prev_heading = best.ref_heading
+                f.prev_sigma = math.sqrt(best.ref_sigma ** 2 + best.ref_var)
+                f.prev_score = best.ref_score
             f.age = best.age + 1 if consecutive else 1
 
-    def commit(self, frames: list[LocalFrame], yaw_step: float) -> None:
-        """After the step (yaw, rad) into this image is known: update, carry and prune tracks."""
+    def commit(self, frames: list[LocalFrame], yaw_step: float, yaw_var: float = 0.0) -> None:
+        """After the step into this image is known (yaw, rad, and its variance, rad^2):
+        update, carry and prune tracks. An observation becomes its track's reference when
+        its sigma is at most ``ref_max_sigma_deg``; else the reference is carried."""
         seen = {f.track_id: f for f in frames}
+        ref_max = math.radians(self.config.ref_max_sigma_deg)
         kept = []
         for t in self._tracks:
             f = seen.pop(t.id, None)
@@ -152,8 +187,16 @@ class ManhattanTracker:
             else:
                 t.heading = float(wrap_quarter(t.heading - yaw_step))
                 t.missed += 1
+            if f is not None and f.sigma <= ref_max:
+                t.ref_heading, t.ref_sigma, t.ref_score, t.ref_var = f.heading, f.sigma, f.score, 0.0
+            else:
+                t.ref_heading = float(wrap_quarter(t.ref_heading - yaw_step))
+                t.ref_var += yaw_var
             if t.missed <= self.config.max_missed:
                 kept.append(t)
         for f in seen.values():
-            kept.append(_Track(f.track_id, f.heading, self._frame))
+            t = _Track(f.track_id, f.heading, self._frame)
+            if f.sigma <= ref_max:
+                t.ref_heading, t.ref_sigma, t.ref_score = f.heading, f.sigma, f.score
+            kept.append(t)
         self._tracks = kept

@@ -6,16 +6,19 @@ associate corners with the previous frame and lift them to levelled 3-D. The ste
 the previous frame is then estimated by
 
 1. direction-plus-point (Sec. 2.1): the yaw from a local Manhattan frame seen in both
-   frames (eq. 1), the translation by 1-point RANSAC on 3-D matches (eq. 2). The frame
-   must be tracked for a few frames and cover enough image area in both views (walls
-   entering the view give biased headings). When the 2-point estimate below is also
-   available, the two yaws are checked against each other (a disagreement beyond
-   3 sigma means a wrong Manhattan association: the 2-point step is used) and fused by
-   their variances, and the 1-point translation is taken at the fused yaw; else
+   frames (eq. 1) at the two observations' own sigmas, the translation by 1-point RANSAC
+   on 3-D matches at that yaw (eq. 2). The frame must be tracked for a few frames and
+   cover enough image area in both views (walls entering the view give biased headings).
+   When the 2-point estimate below is also available it may veto the Manhattan yaw (a
+   disagreement beyond ``dpp_veto_sigmas`` and ``dpp_veto_min_deg`` means a wrong
+   association: the 2-point step is used), but never bends it; else
 2. the 2-point planar homography (Sec. 2.2) with metric scale from depth (enough matches
    with depth must agree on the scale); else
-3. a bridge, flagged ``STATUS_BRIDGED``: constant velocity (or zero motion) with a large
-   covariance -- never silently. A shared large Manhattan frame still gives the yaw.
+3. a partial step, ``STATUS_PARTIAL``, when a Manhattan frame still gives the yaw: that
+   yaw at its own sigma, the translation along the normals of walls seen in both frames,
+   and only the unobserved part of the translation at the bridge's guess and sigma; else
+4. a bridge, ``STATUS_BRIDGED``: constant velocity (or zero motion) with a large
+   covariance -- never silently.
 
 Steps are reported as base_link SE(2) increments with an information matrix in
 gtsam.Pose2 tangent order ``[x, y, theta]``, propagated from the estimator's covariance
@@ -25,7 +28,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -39,9 +42,9 @@ from planar_vo.frontend.features import FeatureSet, FeatureTracker
 from planar_vo.frontend.levelling import Levelling, LevellingState
 from planar_vo.frontend.manhattan import LocalFrame, ManhattanTracker, group_walls
 from planar_vo.frontend.planarity import out_of_plane_motion
-from planar_vo.frontend.planes import PlaneDetection, PlaneDetector
+from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
-from planar_vo.frontend.types import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, FrameResult,
+from planar_vo.frontend.types import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
                                       ManhattanObservation, Step)
 from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
 
@@ -54,6 +57,7 @@ class _Prev:
     x_lev: np.ndarray      # (N, 2) levelled normalised coordinates
     P_lev: np.ndarray      # (N, 3) levelled points, NaN without depth
     frames: list[LocalFrame]
+    walls: list[Plane]
 
 
 def levelled_features(fs: FeatureSet, R_lev_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +95,95 @@ def lev_motion_to_base_step(yaw: float, t: np.ndarray, cov: np.ndarray | None,
         diff[2] = float(geometry.wrap_angle(diff[2]))
         J[:, k] = diff / (2 * h)
     return step, J @ cov @ J.T
+
+
+def _offset_sigma(w: Plane, floor: float) -> float:
+    """Standard deviation (m) of a wall's offset ``d = 1 / |q|``: its fit covariance
+    ``cov_q`` (``q = normal / offset``), the depth errors correlated across the plane
+    (``systematic * rms_rel * d``, as in :attr:`Plane.yaw_sigma`: a far wall cut by the
+    range limit moves by centimetres), and a floor."""
+    q = w.normal / w.offset
+    J = -q / float(np.linalg.norm(q)) ** 3
+    fit = max(float(J @ w.cov_q @ J), 0.0)
+    sys_ = w.systematic * w.rms_rel * w.offset
+    return math.sqrt(fit + sys_ ** 2 + floor ** 2)
+
+
+def _collinear(x: np.ndarray, min_spread: float, info: dict) -> bool:
+    """True when the (N, 2) image points lie along one line: the ratio of the smaller to
+    the larger principal spread is below ``min_spread``. On plain walls the only corners
+    are on the floor-wall junction, where KLT slides along the line (the aperture
+    problem) and the matches agree on a wrong motion along it."""
+    if len(x) < 3:
+        return True
+    sv = np.linalg.svd(x - x.mean(0), compute_uv=False)
+    spread = float(sv[1] / sv[0]) if sv[0] > 0 else 0.0
+    if spread < min_spread:
+        info.setdefault("rejected", []).append({"inlier_spread": spread})
+        return True
+    return False
+
+
+def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray,
+                     config) -> list[tuple[np.ndarray, float, float]]:
+    """Translation constraints ``(n (2,), delta, var)`` meaning ``n . t = delta`` (levelled
+    ``(t_x, t_z)``, metres) from vertical planes seen in both frames, given the step's yaw.
+
+    With ``X2 = R_y(yaw) X1 + t``, a plane ``n1 . X1 = d1`` becomes ``n2 . X2 = d1 + n2 . t``
+    with ``n2 = R_y(yaw) n1``: each wall fixes the translation along its normal,
+    ``n2 . t = d2 - d1`` (a side wall the sideways motion, an end wall the distance along).
+    Walls pair up when their normals agree within ``config.wall_match_deg`` and their
+    offsets within ``config.wall_match_m`` of the prior motion ``t_prior`` (2,); walls
+    beyond ``config.wall_max_offset_m`` are not used (near the sensor's range limit only
+    the points that noise brought nearer survive, and the offset is biased). Walls
+    with (anti)parallel normals are merged into one constraint: two nearly parallel
+    normals would otherwise turn their offset noise into a large motion along the wall.
+    """
+    c, s = math.cos(yaw), math.sin(yaw)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    cos_gate = math.cos(math.radians(config.wall_match_deg))
+    pairs = []
+    for w2 in walls2:
+        if w2.support < config.wall_min_support or w2.offset > config.wall_max_offset_m:
+            continue
+        n2 = np.array([w2.normal[0], w2.normal[2]]) / math.hypot(w2.normal[0], w2.normal[2])
+        best = None
+        for w1 in walls1:
+            if w1.support < config.wall_min_support or w1.offset > config.wall_max_offset_m:
+                continue
+            m = R @ w1.normal
+            gap = abs(w2.offset - w1.offset - float(n2 @ t_prior))
+            if (m[0] * n2[0] + m[2] * n2[1]) / math.hypot(m[0], m[2]) >= cos_gate and gap <= config.wall_match_m \
+                    and (best is None or gap < best[0]):
+                best = (gap, w1)
+        if best is not None:
+            var = (_offset_sigma(best[1], config.wall_min_sigma_m) ** 2
+                   + _offset_sigma(w2, config.wall_min_sigma_m) ** 2)
+            pairs.append((n2, w2.offset - best[1].offset, var))
+    merged: list[list] = []  # [n_ref, sum w*delta, sum w] with delta signed along n_ref
+    for n, delta, var in pairs:
+        for m in merged:
+            if abs(float(n @ m[0])) >= cos_gate:
+                sign = 1.0 if n @ m[0] > 0 else -1.0
+                m[1] += sign * delta / var
+                m[2] += 1.0 / var
+                break
+        else:
+            merged.append([n, delta / var, 1.0 / var])
+    return [(n, wd / w, 1.0 / w) for n, wd, w in merged]
+
+
+def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior: float) -> tuple[np.ndarray, np.ndarray]:
+    """Levelled translation ``(t_x, t_z)`` (2,) and its (2, 2) covariance from
+    :func:`wall_constraints` and an isotropic prior ``t_prior`` (2,), ``sigma_prior`` (m),
+    which keeps what no wall observes (information form)."""
+    A = np.eye(2) / sigma_prior ** 2
+    b = A @ t_prior
+    for n, delta, var in constraints:
+        A += np.outer(n, n) / var
+        b += n * delta / var
+    cov = np.linalg.inv(A)
+    return cov @ b, cov
 
 
 class PlanarOdometry:
@@ -177,14 +270,15 @@ class PlanarOdometry:
         info.update(features=len(fs), new_corners=new_corners, matches=len(matches))
 
         step = None
-        lev_motion = (0.0, np.zeros(3))
+        lev_motion = (0.0, np.zeros(3), 0.0)  # levelled (yaw, t, yaw variance)
         if self._prev is not None:
-            step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, yaw_prior, info)
+            step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, det.walls, yaw_prior,
+                                              info)
         t4 = clock()
         timings["estimate"] = t4 - t3
 
-        self._manhattan.commit(frames, lev_motion[0])
-        self._prev = _Prev(fs, x_lev, P_lev, frames)
+        self._manhattan.commit(frames, lev_motion[0], lev_motion[2])
+        self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls)
         mount_yaw = geometry.mount_se2(self.mount.T_base_cam)[2]
         observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
                                              f.score, f.track_id)
@@ -256,7 +350,31 @@ class PlanarOdometry:
         self.last_detection = det  # for diagnostics and tests; not part of FrameResult
         return det
 
-    def _estimate(self, prev: _Prev, x_lev, P_lev, matches, frames, yaw_prior, info):
+    def _estimate(self, prev: _Prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info):
+        """The step into this frame, in order of preference (module docstring)."""
+        c = self.config.odometry
+        x1, x2, P1, P2, depth_ok = self._matched(prev, x_lev, P_lev, matches, info)
+        mount_se2 = geometry.mount_se2(self.mount.T_base_cam)
+        dpp, mf_yaw = self._dpp(prev, frames, P1, P2, int(depth_ok.sum()), yaw_prior, info)
+        two = self._two_point(x1, x2, P1, P2, info)
+        dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
+                    for e in (dpp, two))
+        if dpp is not None and two is not None and self._vetoed(dpp, two, info):
+            dpp = None
+        for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
+            if est is None:
+                continue
+            motion, e = est[0], est[1]
+            step = self._accept(motion.yaw, motion.t, e.covariance, status, e.num_inliers, mount_se2, info)
+            if step is not None:
+                if status == STATUS_DPP:
+                    self._dpp_track = est[2]
+                return step
+        return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info)
+
+    def _matched(self, prev: _Prev, x_lev, P_lev, matches, info):
+        """Matched levelled coordinates and points ``(x1, x2, P1, P2, depth_ok)``; runs the
+        6-DoF planarity fit on frames without a floor."""
         c = self.config.odometry
         i0, i1 = matches[:, 0], matches[:, 1]
         x1, x2 = prev.x_lev[i0], x_lev[i1]
@@ -272,102 +390,111 @@ class PlanarOdometry:
             if oop is not None:
                 info["out_of_plane"] = {"tilt_deg": oop.tilt_deg, "dy_m": oop.dy_m, "inliers": oop.inliers,
                                         "R": oop.R.tolist(), "t": oop.t.tolist()}
-        max_yaw = math.radians(c.max_step_yaw_deg)
-        mount_se2 = geometry.mount_se2(self.mount.T_base_cam)
+        return x1, x2, P1, P2, depth_ok
 
-        # 1. Direction-plus-point with a local frame seen in both views: the dominant
-        # usable one, unless its 1-point inlier ratio is poor -- then the best of them.
-        prev_sigma = {f.track_id: f.sigma for f in prev.frames}
-        prev_score = {f.track_id: f.score for f in prev.frames}
-        n_depth = max(int(depth_ok.sum()), 1)
-        best = None
-        mf_yaw = None  # (yaw, sigma) of the dominant usable local frame, kept for bridging
-        # The yaw telescopes (drift-free) only along one track: stay with the last one used.
-        ordered = sorted(frames, key=lambda f: (f.track_id != self._dpp_track, -f.score))
-        for f in ordered:
-            if (f.prev_heading is None or f.track_id not in prev_sigma or f.age < c.dpp_min_track_age
-                    or min(f.score, prev_score[f.track_id]) < c.dpp_min_score):
+    def _dpp(self, prev: _Prev, frames, P1, P2, n_depth: int, yaw_prior: float, info):
+        """Direction-plus-point (Sec. 2.1): ``((motion, est, track, local yaw) or None, mf_yaw)``.
+
+        The yaw is the difference of the two views' headings of one local Manhattan frame
+        (eq. 1) with their own sigmas; the 1-point RANSAC (eq. 2) only finds ``t`` at that
+        yaw. ``mf_yaw``: ``(yaw, sigma)`` of the dominant usable frame, or None -- a step
+        whose translation fails keeps it (a partial step).
+        """
+        c = self.config.odometry
+        n_depth = max(n_depth, 1)
+        best, mf_yaw = None, None
+        # Stay with the track used last: switching tracks adds both tracks' errors.
+        for f in sorted(frames, key=lambda f: (f.track_id != self._dpp_track, -f.score)):
+            if (f.prev_heading is None or f.age < c.dpp_min_track_age
+                    or min(f.score, f.prev_score) < c.dpp_min_score):
                 continue
-            yaw_sigma = math.hypot(f.sigma, prev_sigma[f.track_id])
+            yaw_sigma = math.hypot(f.sigma, f.prev_sigma)
             if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
                 continue
             yaw = yaw_from_manhattan_headings(f.prev_heading, f.heading, yaw_prior)
             if mf_yaw is None and f.score >= c.bridge_min_score:
                 mf_yaw = (yaw, yaw_sigma)
-            motion, est = estimate_planar_motion_dpp(P1, P2, yaw, self._dpp_opt, yaw_sigma=yaw_sigma)
+            # The matches see the frame-to-frame rotation; the step's yaw also takes back
+            # what earlier steps got wrong since the reference (a few tenths of a degree,
+            # which moves the next position by well under a millimetre).
+            local = yaw_from_manhattan_headings(f.prev_local, f.heading, yaw_prior)
+            motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
             info.setdefault("dpp", []).append({"status": est.status, "inliers": est.num_inliers,
                                                "track_id": f.track_id, "yaw_sigma": yaw_sigma})
-            if motion is None or est.num_inliers < c.min_inliers:
+            if motion is None or est.num_inliers < c.dpp_min_inliers:
                 continue
             if best is None or est.num_inliers > best[1].num_inliers:
-                best = (motion, est, f.track_id)
+                best = (replace(motion, yaw=float(geometry.wrap_angle(yaw))), est, f.track_id, motion.yaw)
             if est.num_inliers >= 0.8 * n_depth:
                 break
-        dpp = best if best is not None and best[1].num_inliers >= c.dpp_min_inlier_ratio * n_depth else None
+        if best is not None and best[1].num_inliers < c.dpp_min_inlier_ratio * n_depth:
+            best = None
+        return best, mf_yaw
 
-        # 2. 2-point homography with metric scale from depth: the step when no Manhattan
-        # frame is shared, and a cross-check of the Manhattan yaw when one is.
-        two = None
-        if len(x1) >= 2:
-            motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._2pt_opt)
-            n_in = est.num_inliers
-            n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
-            info["2pt"] = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
-                           "iterations": est.iterations}
-            # A scale from a handful of depths cannot be checked against outliers.
-            if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
-                    and n_scale >= c.min_scale_inliers and abs(motion.yaw) <= max_yaw
-                    and est.covariance is not None and est.covariance[0, 0] > 0):
-                two = (motion, est)
+    def _two_point(self, x1, x2, P1, P2, info):
+        """2-point homography with metric scale from depth (Sec. 2.2): ``(motion, est)`` or None."""
+        c = self.config.odometry
+        if len(x1) < 2:
+            return None
+        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._2pt_opt)
+        n_in = est.num_inliers
+        n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
+        info["2pt"] = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
+                       "iterations": est.iterations}
+        # A scale from a handful of depths cannot be checked against outliers.
+        if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
+                and n_scale >= c.min_scale_inliers and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
+                and est.covariance is not None and est.covariance[0, 0] > 0):
+            return motion, est
+        return None
 
-        if dpp is not None:
-            motion, est, tid = dpp
-            yaw, var = motion.yaw, est.covariance[0, 0]
-            if two is not None and c.fuse_yaw:
-                # Both yaws measure the same rotation: a wrong Manhattan association shows as
-                # a disagreement (then the 2-point step stands); else fuse them by their
-                # variances and take the 1-point translation at the fused yaw.
-                yaw2, var2 = two[0].yaw, two[1].covariance[0, 0]
-                d = float(geometry.wrap_angle(yaw - yaw2))
-                info["yaw_check"] = {"dpp_minus_2pt_deg": math.degrees(d),
-                                     "sigma_deg": math.degrees(math.sqrt(var + var2))}
-                if d * d > 9.0 * (var + var2):
-                    dpp = None
-                else:
-                    yaw_f = yaw - d * var / (var + var2)
-                    motion, est = estimate_planar_motion_dpp(P1, P2, yaw_f, self._dpp_opt,
-                                                             yaw_sigma=math.sqrt(var * var2 / (var + var2)))
-                    if motion is None:
-                        dpp = None
-            if dpp is not None:
-                step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_DPP, est.num_inliers,
-                                    mount_se2, info)
-                if step is not None:
-                    self._dpp_track = tid
-                    return step
-        if two is not None:
-            motion, est = two
-            step = self._accept(motion.yaw, motion.t, est.covariance, STATUS_2PT, est.num_inliers, mount_se2, info)
-            if step is not None:
-                return step
+    def _vetoed(self, dpp, two, info) -> bool:
+        """True when the 2-point yaw contradicts the Manhattan yaw (a wrong association).
 
-        # 3. Bridge, flagged: constant velocity (or zero) translation with a large
-        # covariance; the yaw from a shared Manhattan frame when there is one (it does not
-        # need features), else from the same prior as the translation.
+        Both measure the same rotation, but the Manhattan yaw is the paper's drift-free one:
+        the 2-point yaw may only veto it, never pull it (a biased 2-point yaw with a small
+        variance would bend every step the same way and the chain would collect it).
+        """
+        c = self.config.odometry
+        var, var2 = dpp[1].covariance[0, 0], two[1].covariance[0, 0]
+        d = float(geometry.wrap_angle(dpp[3] - two[0].yaw))
+        gate = max(c.dpp_veto_sigmas * math.sqrt(var + var2), math.radians(c.dpp_veto_min_deg))
+        info["yaw_check"] = {"dpp_minus_2pt_deg": math.degrees(d), "sigma_deg": math.degrees(math.sqrt(var + var2)),
+                             "vetoed": abs(d) > gate}
+        return abs(d) > gate
+
+    def _partial_or_bridge(self, walls1, walls2, mf_yaw, mount_se2, info):
+        """No estimator gave a whole step. With a Manhattan yaw the step is partial: that yaw
+        at its own sigma, and the translation along the normals of walls seen in both
+        frames (``d2 - d1 = n2 . t``); what no wall fixes stays at the bridge's guess
+        (constant velocity or zero) and sigma. Without one, the whole step is bridged."""
+        c = self.config.odometry
         if c.bridge == "constant_velocity" and self._last_motion is not None:
             yaw, t = self._last_motion
             how = "constant_velocity"
         else:
             yaw, t = 0.0, np.zeros(3)
             how = "zero"
-        sigma_theta = math.radians(c.bridge_sigma_theta_deg)
-        if mf_yaw is not None:
-            yaw, sigma_theta = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
-            how += "+manhattan_yaw"
-        pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
-        cov = np.diag([c.bridge_sigma_xy ** 2, c.bridge_sigma_xy ** 2, sigma_theta ** 2])
-        info["bridge"] = how
-        return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t)
+        sb = c.bridge_sigma_xy
+        if mf_yaw is None:
+            cov = np.diag([c.bridge_sigma_xy ** 2, c.bridge_sigma_xy ** 2, math.radians(c.bridge_sigma_theta_deg) ** 2])
+            pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
+            info["bridge"] = how
+            return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t, float(cov[2, 2]))
+        yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
+        prior = np.array([t[0], t[2]])
+        walls = wall_constraints(walls1, walls2, yaw, prior, c)
+        t_xz, cov_t = translation_from_walls(walls, prior, sb)
+        n_walls = len(walls)
+        t = np.array([t_xz[0], 0.0, t_xz[1]])
+        cov = np.zeros((3, 3))
+        cov[0, 0] = sigma_yaw ** 2
+        cov[1:, 1:] = cov_t + np.eye(2) * c.min_sigma_xy ** 2
+        pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
+        info["partial"] = {"prior": how, "walls": n_walls}
+        if n_walls:
+            self._last_motion = (float(yaw), t.copy())
+        return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
@@ -382,4 +509,5 @@ class PlanarOdometry:
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([c.min_sigma_xy ** 2, c.min_sigma_xy ** 2,
                                                    math.radians(c.min_sigma_theta_deg) ** 2])
         self._last_motion = (float(yaw), np.asarray(t, dtype=float).copy())
-        return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float))
+        yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
+        return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)

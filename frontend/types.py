@@ -12,7 +12,10 @@ import numpy as np
 #: Step status values.
 STATUS_DPP = "dpp"          # direction-plus-point: Manhattan yaw + 1-point translation (Sec. 2.1)
 STATUS_2PT = "2pt"          # 2-point planar homography solver + metric scale from depth (Sec. 2.2)
-STATUS_BRIDGED = "bridged"  # both failed: motion bridged (constant velocity or zero), huge uncertainty
+STATUS_PARTIAL = "partial"  # yaw observed (Manhattan frame), translation not: only what walls fix, else a guess
+STATUS_BRIDGED = "bridged"  # nothing observed: motion bridged (constant velocity or zero), huge uncertainty
+#: Every status, in report order.
+STATUSES = (STATUS_DPP, STATUS_2PT, STATUS_PARTIAL, STATUS_BRIDGED)
 
 
 @dataclass
@@ -41,7 +44,9 @@ class Step:
     ``pose``: (3,) float64 SE(2) ``T_base_prev_base_curr`` as ``(x, y, theta)``.
     ``information``: (3, 3) float64 inverse covariance in gtsam.Pose2 tangent order
     ``[x, y, theta]``. ``status``: one of STATUS_*. ``inliers``: inlier count of the
-    estimator that produced it (0 when bridged).
+    estimator that produced it (0 when bridged; for a partial step, the walls that fixed
+    part of the translation). A partial step's information is large on theta and on the
+    translation directions its walls observe, small elsewhere.
     """
 
     pose: np.ndarray

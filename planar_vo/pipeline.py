@@ -253,6 +253,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         stamps: list[float] = []
         statuses = Counter()
         frame_infos = []
+        steps: list[list] = []
         stop_reason = None
         partial = False
         # The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
@@ -278,6 +279,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                     stamps.append(frame.stamp)
                     statuses[result.step.status if result.step is not None else "first"] += 1
                     frame_infos.append(_frame_summary(result))
+                    if result.step is not None:
+                        steps.append(_step_row(result))
                     bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
         except KeyboardInterrupt:
             partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
@@ -315,6 +318,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     cpu["outputs_import_background"] = prepared.result()
     t0, c0 = time.perf_counter(), time.thread_time()
     files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
+    files["steps"] = _write_steps(out / "steps.csv", steps)
     timings["write"] += time.perf_counter() - t0
     cpu["write"] += time.thread_time() - c0
     wall = time.perf_counter() - t_start
@@ -334,10 +338,12 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
             "with_pose": n,
             "estimated_dpp": statuses.get("dpp", 0),
             "estimated_2pt": statuses.get("2pt", 0),
+            "partial": statuses.get("partial", 0),
             "bridged": statuses.get("bridged", 0),
             "failed": len(stats.get("corrupt", [])),
             "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
         },
+        "motion": motion_report(statuses),
         "mount": _mount_report(odo.mount),
         "planarity": _planarity_report(frame_infos, levelled=_is_levelled(mount, frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
@@ -353,6 +359,53 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     _atomic_text(out / "report.json", json.dumps(report, indent=2) + "\n")
     files["report"] = str(out / "report.json")
     return RunResult(out, report, partial, stop_reason, files)
+
+
+#: Below this share of steps with a measured translation the run is not a trajectory.
+MIN_MEASURED_FRACTION = 0.5
+#: Below this share the run is degraded (a warning, not a failure).
+GOOD_MEASURED_FRACTION = 0.9
+
+
+def motion_report(statuses: Counter) -> dict:
+    """How much of the motion was measured: steps whose translation came from an
+    estimator (direction-plus-point, 2-point), steps with only the yaw (partial), steps
+    with neither (bridged), and a verdict a user can act on."""
+    n = sum(v for k, v in statuses.items() if k != "first")
+    full = statuses.get("dpp", 0) + statuses.get("2pt", 0)
+    yaw = full + statuses.get("partial", 0)
+    rep = {"steps": n, "translation_measured": full, "yaw_measured": yaw}
+    frac = full / n if n else 1.0
+    if frac >= GOOD_MEASURED_FRACTION:
+        rep["verdict"] = "estimated"
+        rep["message"] = f"translation measured in {full} of {n} steps"
+    else:
+        rep["verdict"] = "not_estimated" if frac < MIN_MEASURED_FRACTION else "degraded"
+        rep["message"] = (f"translation measured in only {full} of {n} steps ({100 * frac:.0f} %; "
+                          f"yaw in {yaw}): the rest is a constant-velocity guess"
+                          + (", so the trajectory is NOT an estimate of the motion (too little texture or "
+                             "depth?)" if rep["verdict"] == "not_estimated" else ""))
+    return rep
+
+
+STEPS_HEADER = "index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers"
+
+
+def _step_row(result) -> list:
+    """One ``steps.csv`` row: the front-end's base_link step ``T_base_prev_base_curr``
+    (x, y m; theta rad) into this frame and the sigmas of its stated covariance."""
+    st = result.step
+    with np.errstate(all="ignore"):
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(st.information)), 0.0))
+    return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers)]
+
+
+def _write_steps(path: Path, rows: list[list]) -> str:
+    lines = [STEPS_HEADER]
+    for r in rows:
+        lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]}")
+    _atomic_text(path, "\n".join(lines) + "\n")
+    return str(path)
 
 
 def _frame_summary(result) -> dict:

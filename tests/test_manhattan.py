@@ -31,11 +31,11 @@ def test_group_parallel_and_perpendicular_walls():
     assert len(frames) == 3
     f0, f1, f2 = frames
     assert sorted(f0.walls) == [0, 1, 2] and f0.score == pytest.approx(0.55)
-    # area-weighted mean of 10.0, 10.2, 9.9 (mod 90)
-    expect = (0.30 * 10.0 + 0.20 * 10.2 + 0.05 * 9.9) / 0.55
+    # mean of 10.0, 10.2, 9.9 (mod 90) weighted by 1/sigma^2 (equal sigmas here)
+    expect = (10.0 + 10.2 + 9.9) / 3
     assert math.degrees(f0.heading) == pytest.approx(expect, abs=1e-6)
     assert sorted(f1.walls) == [3, 4] and f1.score == pytest.approx(0.16)
-    assert math.degrees(f1.heading) == pytest.approx(g.wrap_quarter(D(40.0 * 0.1 / 0.16 + 39.7 * 0.06 / 0.16)) * 180 / math.pi, abs=1e-6)
+    assert math.degrees(f1.heading) == pytest.approx(math.degrees(g.wrap_quarter(D(39.85))), abs=1e-6)
     assert f2.walls == [5]
     # wrapped to [-45, 45) degrees; sigma reflects the walls' scatter and is floored
     for f in frames:
@@ -45,11 +45,13 @@ def test_group_parallel_and_perpendicular_walls():
 
 
 def test_group_across_the_wrap():
-    frames = group_walls([wall(D(44.5), 0.2), wall(D(-44.5), 0.1), wall(D(135.8), 0.1)])
+    frames = group_walls([wall(D(44.5), 0.2, 0.4), wall(D(-44.5), 0.1, 0.4), wall(D(135.8), 0.1, 0.8)])
     assert len(frames) == 1
-    # the mean lands across the +-45 deg seam: 44.5, 45.5, 45.8 mod 90
+    # the mean lands across the +-45 deg seam: 44.5, 45.5, 45.8 mod 90, weighted by 1/sigma^2
     m = math.degrees(float(g.wrap_quarter(frames[0].heading - D(45.0))))
-    assert m == pytest.approx((0.2 * -0.5 + 0.1 * 0.5 + 0.1 * 0.8) / 0.4, abs=1e-6)
+    assert m == pytest.approx((4 * -0.5 + 4 * 0.5 + 1 * 0.8) / 9, abs=1e-6)
+    # walls that disagree beyond their sigmas are not one frame (a box 1.3 deg off)
+    assert len(group_walls([wall(D(44.5), 0.2, 0.05), wall(D(135.8), 0.1, 0.05)])) == 2
 
 
 def test_tracker_follows_a_turn_through_the_ambiguity():
@@ -84,14 +86,19 @@ def test_tracker_carries_unseen_frames_and_prunes():
     trk.associate(f, 0.0)
     trk.commit(f, 0.0)
     tid = f[0].track_id
-    # two frames without walls while turning 2 deg per frame
+    sigma0 = f[0].sigma
+    # two frames without walls while turning 2 deg per frame, each step's yaw 0.1 deg uncertain
     for _ in range(2):
         trk.associate([], D(2.0))
-        trk.commit([], D(2.0))
+        trk.commit([], D(2.0), D(0.1) ** 2)
     f = group_walls([wall(D(1.0), 0.3)])
     trk.associate(f, D(2.0))
     assert f[0].track_id == tid
-    assert f[0].prev_heading is None  # not seen in the previous frame: no direction-plus-point
+    # the reference is carried by the two steps (5 - 2 - 2 deg) and carries their variance,
+    # so the direction-plus-point yaw of this step (prev_heading - heading) is the third step's
+    assert f[0].prev_heading == pytest.approx(D(1.0), abs=1e-12)
+    assert f[0].prev_sigma == pytest.approx(math.sqrt(sigma0 ** 2 + 2 * D(0.1) ** 2), rel=1e-9)
+    assert f[0].age == 1  # not seen in the previous frame: too young for direction-plus-point
     trk.commit(f, D(2.0))
     for _ in range(4):
         trk.associate([], 0.0)

@@ -9,7 +9,8 @@ import pytest
 from planar_vo import geometry as g
 from planar_vo.errors import InputError
 from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
-from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP
+from planar_vo.backend.graph import PlanarPoseGraph
+from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
 from planar_vo.io.types import CameraIntrinsics, RGBDFrame
 
 
@@ -63,7 +64,7 @@ def _check_steps(results):
         assert s.pose.shape == (3,) and np.isfinite(s.pose).all()
         assert np.allclose(s.information, s.information.T)
         assert np.linalg.eigvalsh(s.information).min() > 0
-        assert s.status in (STATUS_DPP, STATUS_2PT, STATUS_BRIDGED)
+        assert s.status in STATUSES
         assert {"planes", "manhattan", "features", "estimate", "total"} <= set(r.timings)
         assert {"features", "matches", "planes", "walls", "levelling", "floor_seen"} <= set(r.info)
 
@@ -121,30 +122,50 @@ def test_hall_u_turn(hall):
     _check_steps(results)
     statuses = [r.step.status for r in results[1:]]
     assert statuses.count(STATUS_2PT) > 10  # walls are far or out of view for part of the turn
-    drift, yaw_err = _drift(_chain(results), np.array([f.pose_world_base for f in frames]))
+    truth = np.array([f.pose_world_base for f in frames])
+    drift, yaw_err = _drift(_chain(results), truth)
     assert drift < 0.02, drift
-    assert abs(yaw_err) < 1.0, yaw_err
+    # The raw chain's heading telescopes along each Manhattan track; the U-turn hands over
+    # between tracks of single walls 3-4 m away three times, each adding one observation's
+    # error (0.3-0.5 deg here). The graph ties the tracks to one frame and removes it.
+    assert abs(yaw_err) < 2.0, yaw_err
+    graph = PlanarPoseGraph()
+    for r in results:
+        graph.add_frame(r)
+    drift, yaw_err = _drift(graph.optimize(), truth)
+    assert graph.stats["manhattan_frames"] == 1
+    assert drift < 0.02 and abs(yaw_err) < 1.0, (drift, yaw_err)
 
 
 def test_untextured_hall_is_bridged_not_guessed():
     """No texture, walls mostly out of range: the estimators rarely have enough to work
-    with, and every step they cannot estimate says so (STATUS_BRIDGED, large covariance)
-    instead of inventing motion; the few estimated steps are right."""
+    with. Every step they cannot estimate says so: partial (the Manhattan yaw, and the
+    translation only along walls seen in both frames) or bridged (large covariance),
+    instead of inventing motion; what is stated is right within the stated sigmas."""
     K, mount, frames = _render(layout="hall", n_frames=100, seed=2, speed=0.8, texture="none",
                                resolution=(480, 270))
     odo = PlanarOdometry(K, mount)
     results = [odo.process(f.rgbd) for f in frames]
     _check_steps(results)
-    bridged = [r for r in results[1:] if r.step.status == STATUS_BRIDGED]
-    assert len(bridged) >= 0.7 * (len(results) - 1)
-    for r in bridged:
-        cov = np.linalg.inv(r.step.information)
-        assert math.sqrt(cov[0, 0]) >= 0.5 and math.sqrt(cov[1, 1]) >= 0.5 and "bridge" in r.info
-        assert r.step.inliers == 0
+    guessed = [r for r in results[1:] if r.step.status in (STATUS_BRIDGED, STATUS_PARTIAL)]
+    assert len(guessed) >= 0.7 * (len(results) - 1)
+    z = []
     for r, f0, f1 in zip(results[1:], frames[:-1], frames[1:]):
-        if r.step.status != STATUS_BRIDGED:
-            e = r.step.pose - g.se2_between(f0.pose_world_base, f1.pose_world_base)
+        cov = np.linalg.inv(r.step.information)
+        e = r.step.pose - g.se2_between(f0.pose_world_base, f1.pose_world_base)
+        e[2] = float(g.wrap_angle(e[2]))
+        if r.step.status == STATUS_BRIDGED:
+            assert math.sqrt(cov[0, 0]) >= 0.5 and math.sqrt(cov[1, 1]) >= 0.5 and "bridge" in r.info
+            assert r.step.inliers == 0
+        elif r.step.status == STATUS_PARTIAL:
+            # the yaw is measured; the translation only where walls pair up
+            assert math.degrees(math.sqrt(cov[2, 2])) < 0.6
+            z.append(e / np.sqrt(np.diag(cov)))
+        else:
             assert np.linalg.norm(e[:2]) < 0.03 and abs(math.degrees(e[2])) < 0.5, (f1.rgbd.index, e)
+    assert len(z) >= 10
+    # partial steps agree with their sigmas, component by component
+    assert np.all(np.sqrt(np.mean(np.square(z), axis=0)) < 2.0), np.sqrt(np.mean(np.square(z), axis=0))
 
 
 def test_covariance_propagation_matches_monte_carlo():

@@ -39,7 +39,7 @@ def sample_log(samples_dir: Path, progress: bool = True) -> Path:
 
 
 def main(args: argparse.Namespace) -> int:
-    from planar_vo.commands.run import print_summary
+    from planar_vo.commands.run import exit_code, print_summary
     from planar_vo.config import load_config
     from planar_vo.errors import InputError
     from planar_vo.evaluation import evaluate_run, format_table
@@ -60,4 +60,4 @@ def main(args: argparse.Namespace) -> int:
     path = Path(args.out) / "evaluation.json"
     path.write_text(json.dumps(ev, indent=2) + "\n")
     print(f"\nplot: {Path(args.out) / 'trajectory.png'}   figures: {path}")
-    return 3 if result.partial else 0
+    return exit_code(result)

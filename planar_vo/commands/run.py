@@ -55,18 +55,33 @@ def main(args: argparse.Namespace) -> int:
     config = load_config(args.config, overrides_from_args(args))
     result = run(args.log, args.out, config, progress=not args.quiet, gt_path=args.gt)
     print_summary(result)
-    return 3 if result.partial else 0
+    return exit_code(result)
+
+
+#: Exit code of a run that finished but could not estimate the motion (report.json "motion").
+EXIT_NOT_ESTIMATED = 4
+
+
+def exit_code(result) -> int:
+    """3 for a partial run, 4 when the motion was not estimated, else 0."""
+    if result.partial:
+        return 3
+    if result.report.get("motion", {}).get("verdict") == "not_estimated":
+        return EXIT_NOT_ESTIMATED
+    return 0
 
 
 def print_summary(result) -> None:
     r = result.report
     f = r["frames"]
     print(f"frames with a pose: {f['with_pose']} (direction-plus-point {f['estimated_dpp']}, "
-          f"2-point {f['estimated_2pt']}, bridged {f['bridged']}, failed {f['failed']})")
+          f"2-point {f['estimated_2pt']}, partial {f.get('partial', 0)}, bridged {f['bridged']}, "
+          f"failed {f['failed']})")
     print(f"speed: {r['fps']} frames/s end to end")
-    pl = r.get("planarity", {})
-    if pl.get("verdict") in ("not_planar", "unverified"):
-        print(f"warning: {pl['message']}")
+    for key, bad in (("motion", ("not_estimated", "degraded")), ("planarity", ("not_planar", "unverified"))):
+        sec = r.get(key, {})
+        if sec.get("verdict") in bad:
+            print(f"warning: {sec['message']}")
     if result.partial:
         print(f"partial run: {result.stop_reason}; results so far written")
     print(f"wrote {result.out_dir}/: " + ", ".join(sorted(p.split('/')[-1] for p in result.files.values())))
