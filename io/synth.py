@@ -93,10 +93,17 @@ class SynthConfig:
     max_yaw_rate: float = 0.6
     weave: float = 0.12
     weave_wavelength: float = 5.0
+    #: further sideways weaves ``(amplitude m, wavelength m)`` superposed on the first, each
+    #: with a seeded phase: short wavelengths turn the heading fast (a real robot's wobble)
+    weave_components: tuple = ()
     start_stamp: float = 1_700_000_000.0
     # scene
     corridor_width: float = 2.0
     ceiling_height: float = 2.6
+    door_proud_m: float = 0.012      # doors stand this far out of their wall
+    poster_proud_m: float = 0.004
+    box_density: float = 0.2         # boxes per metre of corridor wall
+    branch_angle_deg: float = 60.0   # two_frames: angle between the two corridors
     # depth sensor
     depth_min: float = 0.5
     depth_max: float = 4.5
@@ -104,11 +111,16 @@ class SynthConfig:
     depth_sigma2: float = 0.0015
     depth_edge_holes: bool = True
     depth_min_cos: float = 0.1
+    #: depth sigma grows at oblique incidence: times ``1 + depth_incidence * (1 / cos - 1)``
+    depth_incidence: float = 0.0
+    #: at a depth edge the far-side pixel is lost, and the next one out with this probability
+    edge_dropout: float = 0.5
     dropout_rate: float = 0.001
     dropout_blobs: float = 1.0
     # colour
     image_noise: float = 2.0
     vignetting: float = 0.15
+    light_gain: float = 1.0          # scene brightness before exposure (1 = as designed)
     # sensor effects beyond the ideal camera (all off by default; ``sensor="kinect2"`` in
     # :func:`with_sensor` turns on the set the benchmarks call "Kinect v2 effects")
     exposure_ms: float = 0.0
@@ -147,6 +159,16 @@ class SynthConfig:
             bad("weave", "must be within [0, corridor_width / 4]")
         if self.ramp_s < 0:
             bad("ramp_s", "must be >= 0")
+        if any(len(w) != 2 or not (0 <= w[0] <= 0.25 * self.corridor_width and w[1] > 0)
+               for w in self.weave_components):
+            bad("weave_components", "must be (amplitude, wavelength) pairs with 0 <= amplitude <= "
+                "corridor_width / 4 and wavelength > 0")
+        if not 10.0 <= self.branch_angle_deg <= 80.0:
+            bad("branch_angle_deg", "must be within [10, 80] degrees")
+        if not (0.0 <= self.edge_dropout <= 1.0 and self.depth_incidence >= 0 and self.light_gain > 0
+                and self.box_density >= 0 and self.door_proud_m >= 0 and self.poster_proud_m >= 0):
+            bad("edge_dropout", "edge_dropout in [0, 1]; depth_incidence, box_density and the proud offsets "
+                ">= 0; light_gain > 0")
         for name in ("exposure_ms", "readout_ms", "color_delay_ms", "flicker"):
             if not (getattr(self, name) >= 0 and math.isfinite(getattr(self, name))):
                 bad(name, "must be a finite number >= 0")
@@ -251,7 +273,9 @@ def synth_mount(cfg: SynthConfig) -> Mount:
 def _scene_for(cfg: SynthConfig) -> Scene:
     return build_scene(cfg.layout, cfg.path_length, cfg.seed, corridor_width=cfg.corridor_width,
                        ceiling_height=cfg.ceiling_height, turn_radius=cfg.turn_radius_used,
-                       n_posters=N_POSTERS, n_doors=N_DOORS, n_box_designs=N_BOXES)
+                       n_posters=N_POSTERS, n_doors=N_DOORS, n_box_designs=N_BOXES,
+                       door_proud=cfg.door_proud_m, poster_proud=cfg.poster_proud_m,
+                       box_density=cfg.box_density, branch_angle_deg=cfg.branch_angle_deg)
 
 
 def _trajectory(cfg: SynthConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -280,6 +304,12 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     phase = rng.uniform(0.0, 2.0 * np.pi)
     d = cfg.weave * np.sin(k * s + phase)
     dd = cfg.weave * k * np.cos(k * s + phase)
+    for amp, wavelength in cfg.weave_components:
+        n_per = max(1, int(round(scene.path.length / wavelength)))
+        kk = 2.0 * np.pi * n_per / scene.path.length
+        ph = rng.uniform(0.0, 2.0 * np.pi)
+        d = d + amp * np.sin(kk * s + ph)
+        dd = dd + amp * kk * np.cos(kk * s + ph)
     nrm = np.stack([-np.sin(head), np.cos(head)], -1)
     xy = c + d[:, None] * nrm
     # heading of p(s) = c(s) + d(s) n(s): p' = t (1 - kappa d) + d' n
@@ -634,6 +664,8 @@ class SynthRenderer:
                 acc += cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             img = acc
             img *= f32(1.0 / K)
+        if cfg.light_gain != 1.0:
+            img *= f32(cfg.light_gain)
         gain = 1.0
         if cfg.auto_exposure:
             gain = cfg.ae_target / max(float(img.mean()), 1.0)
@@ -657,6 +689,9 @@ class SynthRenderer:
             d = z_true * z_true
             d *= f32(cfg.depth_sigma2)
             d += f32(cfg.depth_sigma0)
+            if cfg.depth_incidence > 0:  # oblique surfaces return fewer, noisier photons
+                d *= f32(1.0) + f32(cfg.depth_incidence) * (f32(1.0) / np.maximum(np.abs(cos_full), f32(0.2))
+                                                           - f32(1.0))
             d *= buf[off: off + N]
             d += z_true
             d *= f32(1000.0)
@@ -674,7 +709,7 @@ class SynthRenderer:
         if cfg.depth_edge_holes:
             fly: list | None = [] if cfg.flying_pixels > 0 else None
             zt = z_true.reshape(H, W)
-            d[_edge_holes(zt, rng, fly)] = 0.0
+            d[_edge_holes(zt, rng, fly, cfg.edge_dropout)] = 0.0
             if fly:
                 # flying pixels: the far-side pixel mixes the near and far returns
                 rr = np.concatenate([f[0] for f in fly])
@@ -722,12 +757,13 @@ class SynthRenderer:
         }
 
 
-def _edge_holes(z: np.ndarray, rng: np.random.Generator, flying: list | None = None) -> np.ndarray:
+def _edge_holes(z: np.ndarray, rng: np.random.Generator, flying: list | None = None,
+                extra: float = 0.5) -> np.ndarray:
     """Mask (H, W) of pixels lost at depth discontinuities.
 
     A jump between neighbours larger than ``0.02 + 0.03 z^2`` m (well above the
     neighbour-to-neighbour change of a slanted floor) removes the far-side pixel, and
-    with probability 1/2 the next one outward as well (one or two pixels, as Kinect v2).
+    with probability ``extra`` the next one outward as well (one or two pixels, as Kinect v2).
     If ``flying`` is a list, ``(rows, cols, z_near)`` of the far-side pixels next to a
     jump are appended to it (the pixels a time-of-flight camera may return as mixtures).
     """
@@ -748,7 +784,7 @@ def _edge_holes(z: np.ndarray, rng: np.random.Generator, flying: list | None = N
         if flying is not None:
             rr, cc = (r + far, c) if axis == 0 else (r, c + far)
             flying.append((rr, cc, np.minimum(a[r, c], b[r, c])))
-        for k, keep in ((far, None), (far + sgn, rng.random(len(r)) < 0.5)):  # 1 or 2 pixels
+        for k, keep in ((far, None), (far + sgn, rng.random(len(r)) < extra)):  # 1 or 2 pixels
             rr, cc = (r + k, c) if axis == 0 else (r, c + k)
             ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
             if keep is not None:

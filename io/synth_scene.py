@@ -232,8 +232,10 @@ class _Builder:
                                      np.array([1.0, 0, 0]), (y1 - y0, x1 - x0)))
         return (float(x0), float(y0), float(x1), float(y1))
 
-    def decorate_walls(self, n_posters: int, n_doors: int, door_p=0.22, poster_p=0.42) -> None:
-        """Doors (1.2 cm proud) and posters (4 mm proud) along every wall longer than 1 m."""
+    def decorate_walls(self, n_posters: int, n_doors: int, door_p=0.22, poster_p=0.42, door_proud=0.012,
+                       poster_proud=0.004) -> None:
+        """Doors and posters (standing ``door_proud`` / ``poster_proud`` m out) along every wall
+        longer than 1 m."""
         rng = self.rng
         for q0, q1, k, tint in self.walls:
             ln = float(np.linalg.norm(q1 - q0))
@@ -246,13 +248,13 @@ class _Builder:
             while pos < ln - 0.35:
                 r = rng.random()
                 if r < door_p and pos + 0.9 < ln - 0.35:
-                    w, hh, bottom, off = 0.9, min(2.05, self.h - 0.15), 0.0, 0.012
+                    w, hh, bottom, off = 0.9, min(2.05, self.h - 0.15), 0.0, door_proud
                     mat, design = MAT_DOOR, int(rng.integers(n_doors))
                 elif r < door_p + poster_p:
                     w = float(rng.uniform(0.4, 0.9))
                     hh = float(min(w * rng.uniform(0.75, 1.35), 1.0))
                     bottom = float(min(rng.uniform(1.0, 1.45), self.h - 0.1 - hh))
-                    off, mat, design = 0.004, MAT_POSTER, int(rng.integers(n_posters))
+                    off, mat, design = poster_proud, MAT_POSTER, int(rng.integers(n_posters))
                     if pos + w > ln - 0.35:
                         break
                 else:
@@ -357,7 +359,8 @@ def min_path_length(layout: str, turn_radius: float = 0.9, corridor_width: float
 
 def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: float = 2.0,
                 ceiling_height: float = 2.6, turn_radius: float = 0.9, clearance: float = 0.57,
-                n_posters: int = 24, n_doors: int = 4, n_box_designs: int = 12) -> Scene:
+                n_posters: int = 24, n_doors: int = 4, n_box_designs: int = 12, door_proud: float = 0.012,
+                poster_proud: float = 0.004, box_density: float = 0.2, branch_angle_deg: float = 60.0) -> Scene:
     """Build ``layout`` for a path of ``path_length`` metres (deterministic for ``seed``).
 
     ``clearance``: minimum distance (m) of boxes and pillars from the nominal path.
@@ -377,7 +380,7 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         P = np.array([[0.0, 0.0], [L, 0.0]])
         C = np.array([[-3.0, 0.0], [L + 6.0, 0.0]])
     elif layout in ("lturn", "two_frames"):
-        turn = math.pi / 2 if layout == "lturn" else math.pi / 3
+        turn = math.pi / 2 if layout == "lturn" else math.radians(branch_angle_deg)
         if layout == "two_frames":
             headings = [0.0, turn]
         T = r * math.tan(turn / 2)
@@ -407,7 +410,8 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         y0, y1 = -5.5, 2 * 1.5 + 5.5
         B.ring(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]))
         bounds = B.floor_and_ceiling()
-        B.decorate_walls(n_posters, n_doors, door_p=0.15, poster_p=0.3)
+        B.decorate_walls(n_posters, n_doors, door_p=0.15, poster_p=0.3, door_proud=door_proud,
+                         poster_proud=poster_proud)
         B.boxes_along_walls(0.15, path_pts, clearance, n_box_designs)
         sp = 3.6
         off = rng.uniform(0, sp, 2)
@@ -432,7 +436,7 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         for ring in _corridor_rings(C, w, closed):
             B.ring(ring)
         bounds = B.floor_and_ceiling()
-        B.decorate_walls(n_posters, n_doors)
-        B.boxes_along_walls(0.2, path_pts, clearance, n_box_designs)
+        B.decorate_walls(n_posters, n_doors, door_proud=door_proud, poster_proud=poster_proud)
+        B.boxes_along_walls(box_density, path_pts, clearance, n_box_designs)
         lamps = _polyline_samples(C, 2.4, closed)
     return Scene(layout, B.surfaces, headings, path, lamps, h, bounds)

@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run."""
+"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep."""
 from __future__ import annotations
 
 import argparse
@@ -12,6 +12,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "io": ("planar_vo.bench.io", "peak memory while streaming a >= 1 GB log"),
     "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
     "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),
+    "sweep": ("planar_vo.bench.sweep", "accuracy over randomized scenes: drift and yaw distributions per layout"),
 }
 
 

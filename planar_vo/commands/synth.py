@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ideal | kinect2: kinect2 adds the Kinect v2 colour camera's auto-exposure, motion "
                              "blur, rolling shutter, unsynchronised colour/depth and flicker, and flying depth "
                              "pixels (default: ideal)")
+    parser.add_argument("--randomize", action="store_true",
+                        help="draw the scene, path wobble, mount, speed, rate, texture, lighting and sensor "
+                             "effects from --seed (planar_vo.io.synth_random.RANGES); --frames is then a "
+                             "minimum, and the other scene flags are ignored")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -73,10 +77,16 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(f"--sensor {args.sensor!r}: use one of {', '.join(SENSOR_PRESETS)}")
     width, height = _parse_size(args.size)
     try:
-        cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=args.frames, rate_hz=args.rate,
-                          speed=args.speed, texture=args.texture, pitch_deg=args.pitch_deg,
-                          roll_deg=args.roll_deg, cam_height=args.height, depth_noise=not args.no_depth_noise)
-        cfg = with_sensor(cfg, args.sensor)
+        if args.randomize:
+            from planar_vo.io.synth_random import describe, randomized_config
+
+            cfg = randomized_config(args.seed, args.layout, n_frames=args.frames)
+            print("randomized: " + ", ".join(f"{k}={v}" for k, v in describe(cfg).items()))
+        else:
+            cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=args.frames, rate_hz=args.rate,
+                              speed=args.speed, texture=args.texture, pitch_deg=args.pitch_deg,
+                              roll_deg=args.roll_deg, cam_height=args.height, depth_noise=not args.no_depth_noise)
+            cfg = with_sensor(cfg, args.sensor)
         if (width, height) != (cfg.width, cfg.height):
             cfg = cfg.at_resolution(width, height)
     except ConfigError as exc:
