@@ -27,8 +27,8 @@ RANGES = {
     "speed": (0.2, 0.8),                 # m/s
     "rate_hz": (10.0, 15.0, 20.0, 30.0),  # one of
     "texture": {"none": 0.05, "low": 0.25, "medium": 0.40, "rich": 0.30},  # probabilities
-    "wobble_heading_deg": (0.0, 6.0),    # total heading amplitude of the superposed weaves
-    "wobble_wavelength": (1.0, 6.0),     # m of travel per period, 2-3 components
+    "wobble_heading_deg": (1.0, 6.0),    # total heading amplitude of the superposed weaves
+    "wobble_wavelength": (1.0, 5.0),     # m of travel per period, 2-3 components
     "max_heading_rate_deg_s": 10.0,      # the wobble is scaled down to stay below this
     "door_proud_m": (0.003, 0.010),
     "poster_proud_m": (0.003, 0.010),
@@ -67,7 +67,8 @@ def _wobble(rng: np.random.Generator, speed: float) -> tuple:
     lam = rng.uniform(*RANGES["wobble_wavelength"], n)
     # heading of a weave A sin(2 pi s / L): amplitude atan(2 pi A / L), rate ~ 2 pi A / L * 2 pi v / L
     rate = float(np.sum(share * 2 * math.pi * speed / lam))
-    cap = math.radians(RANGES["max_heading_rate_deg_s"])
+    # 0.85: the path fits whole periods, which shortens a wavelength by up to ~15 %
+    cap = 0.85 * math.radians(RANGES["max_heading_rate_deg_s"])
     if rate > cap:
         share *= cap / rate
     return tuple((float(math.tan(h) * L / (2 * math.pi)), float(L)) for h, L in zip(share, lam))
