@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
+from importlib import resources
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
-RECIPE = REPO / "data" / "demo_corridor_lturn.yaml"
+#: data/demo_corridor_lturn.yaml in the repository, installed as package data of planar_vo.data
+RECIPE_NAME = "demo_corridor_lturn.yaml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,13 +29,17 @@ def sample_log(samples_dir: Path, progress: bool = True) -> Path:
     from planar_vo.configtools import from_dict
     from planar_vo.io.synth import SynthConfig, write_synth_log
 
-    cfg = from_dict(SynthConfig, yaml.safe_load(RECIPE.read_text()))
-    out = samples_dir / f"{RECIPE.stem}.mcap"
-    if out.exists() and out.with_suffix(".gt.tum").exists() and out.stat().st_mtime >= RECIPE.stat().st_mtime:
+    text = resources.files("planar_vo.data").joinpath(RECIPE_NAME).read_text()
+    cfg = from_dict(SynthConfig, yaml.safe_load(text))
+    out = samples_dir / f"{Path(RECIPE_NAME).stem}.mcap"
+    recipe_copy = samples_dir / RECIPE_NAME
+    if (out.exists() and out.with_suffix(".gt.tum").exists() and recipe_copy.exists()
+            and recipe_copy.read_text() == text):
         return out
     samples_dir.mkdir(parents=True, exist_ok=True)
-    print(f"rendering the sample log {out} from {RECIPE.relative_to(REPO)} (first run only)")
+    print(f"rendering the sample log {out} from the recipe {RECIPE_NAME} (first run only)")
     write_synth_log(cfg, out, progress=progress)
+    recipe_copy.write_text(text)  # the rendered log is current for exactly this recipe
     return out
 
 
