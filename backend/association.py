@@ -135,9 +135,6 @@ class ManhattanAssociator:
         """Frame index and ``measured = yaw + b*pi/2`` with the smallest gated residual."""
         best, best_u, best_meas = None, math.inf, 0.0
         theta, P = self._x[0], self._P
-        # After a bridged step the heading itself is uncertain: widen the degree cap with it
-        # (never past 40 deg, where the 90-degree branch becomes ambiguous).
-        cap = min(max(self._gate_max, 3.0 * math.sqrt(P[0, 0])), math.radians(40.0))
         nearest, nearest_r = None, math.inf
         for j in range(self.n_frames):
             if j in used:
@@ -145,8 +142,14 @@ class ManhattanAssociator:
             d = self._x[j + 1] - theta - yaw
             b = round(d / HALF_PI)
             r = math.remainder(d - b * HALF_PI, TWO_PI)
+            # variance of the predicted heading of frame j relative to the robot (not of the
+            # heading in odom, which a long bridge at the start leaves unknown while the
+            # frame's relative heading is well known)
             s = P[j + 1, j + 1] + P[0, 0] - 2.0 * P[0, j + 1] + var
             u = abs(r) / math.sqrt(s)
+            # When that is uncertain (a bridged stretch since the frame was seen), widen the
+            # degree cap with it, never past 40 deg, where the 90-degree branch is ambiguous.
+            cap = min(max(self._gate_max, 3.0 * math.sqrt(s)), math.radians(40.0))
             if abs(r) <= cap and u <= self.cfg.gate_sigmas and u < best_u:
                 best, best_u, best_meas = j, u, yaw + b * HALF_PI
             if abs(r) < nearest_r:

@@ -44,9 +44,9 @@ class BackendConfig:
     # --- steps (BetweenFactorPose2 per frame)
     step_min_sigma_xy: float = 1e-3          # m; marginal sigmas raised to at least this
     step_min_sigma_theta_deg: float = 0.02   # deg
-    #: "frontend": use a bridged step's information as given; "override": replace it by
-    #: the sigmas below (a bridged step is a guess, its front-end covariance is too).
-    bridged_policy: Literal["frontend", "override"] = "override"
+    #: "frontend": use a bridged step's information as given (the front-end states the
+    #: uncertainty of its constant-velocity guess); "override": replace it by the sigmas below.
+    bridged_policy: Literal["frontend", "override"] = "frontend"
     bridged_sigma_xy: float = 0.5            # m
     bridged_sigma_theta_deg: float = 30.0    # deg
 

@@ -103,6 +103,11 @@ class FeatureConfig:
     quality_level: float = 0.01      # Shi-Tomasi relative quality (klt)
     min_distance: int = 12           # pixels between corners (klt)
     block_size: int = 3
+    #: New corners whose gradient structure tensor is edge-like (smaller over larger
+    #: eigenvalue below this, over a (2 corner_window + 1)^2 window of the detection image)
+    #: are dropped: KLT slides along edges. 0 disables.
+    min_corner_ratio: float = 0.05
+    corner_window: int = 3
     detect_half: bool = True         # detect at half resolution, refine at full (klt)
     klt_window: int = 11
     klt_levels: int = 3
@@ -166,7 +171,12 @@ class OdometryConfig:
     max_sigma_xy: float = 0.05       # estimates less certain than this (m, deg) are failures
     max_sigma_theta_deg: float = 1.0
     bridge: Literal["constant_velocity", "zero"] = "constant_velocity"
-    bridge_sigma_xy: float = 1.0     # metres, std of a bridged step
+    #: A constant-velocity guess errs by the velocity change since the last measurement:
+    #: sigma = accel * k * dt^2 after k unmeasured frames of dt seconds (indoor robots),
+    #: capped at the sigmas below, which also apply when no motion was ever measured.
+    bridge_accel_xy: float = 0.5          # m/s^2
+    bridge_accel_theta_deg: float = 30.0  # deg/s^2
+    bridge_sigma_xy: float = 1.0     # metres
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
     min_sigma_xy: float = 0.002      # floors on a step's std (unmodelled errors)

@@ -139,23 +139,30 @@ class ManhattanTracker:
         """(track id, heading in the latest levelled frame) of the live tracks."""
         return [(t.id, t.heading) for t in self._tracks]
 
-    def associate(self, frames: list[LocalFrame], yaw_prior: float) -> None:
+    def associate(self, frames: list[LocalFrame], yaw_prior: float, yaw_prior_sigma: float = 0.0) -> None:
         """Give each frame a ``track_id`` (new ids for unmatched ones) and ``prev_heading``.
 
         ``frames``: this image's local frames, dominant first. ``yaw_prior``: expected
-        yaw (rad) of the step from the previous image (e.g. constant velocity).
+        yaw (rad) of the step from the previous image (e.g. constant velocity), with std
+        ``yaw_prior_sigma`` (rad). When another track fits within three of those sigmas of
+        the best one, the association is ambiguous: the frame keeps the track id but no
+        ``prev_heading`` (no yaw is measured from it this frame).
         """
         self._frame += 1
         gate = math.radians(self.config.track_gate_deg)
         free = list(self._tracks)
         for f in frames:
             best, best_err = None, gate
+            errs = []
             # tracks seen in the previous frame first: a carried one a degree away (a wall
             # group that split off for a while) must not take over the track in view
             for t in sorted(free, key=lambda t: t.missed):
                 err = abs(float(wrap_quarter(f.heading - (t.heading - yaw_prior))))
+                errs.append((t.missed, err))
                 if err < best_err and (best is None or t.missed == best.missed):
                     best, best_err = t, err
+            ambiguous = best is not None and sum(
+                m == best.missed and e <= best_err + 3.0 * yaw_prior_sigma for m, e in errs) > 1
             if best is None:
                 f.track_id, f.prev_heading = self._next_id, None
                 self._next_id += 1
@@ -167,11 +174,11 @@ class ManhattanTracker:
             # chained heading follows the Manhattan frame across frames where the step
             # came from elsewhere (their errors are in ref_var, hence in prev_sigma).
             f.prev_local = best.heading
-            if math.isfinite(best.ref_sigma):
+            if math.isfinite(best.ref_sigma) and not ambiguous:
                 f.prev_heading = best.ref_heading
                 f.prev_sigma = math.sqrt(best.ref_sigma ** 2 + best.ref_var)
                 f.prev_score = best.ref_score
-            f.age = best.age + 1 if consecutive else 1
+            f.age = best.age + 1 if consecutive and not ambiguous else 1
 
     def commit(self, frames: list[LocalFrame], yaw_step: float, yaw_var: float = 0.0) -> None:
         """After the step into this image is known (yaw, rad, and its variance, rad^2):

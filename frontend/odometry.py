@@ -220,6 +220,12 @@ class PlanarOdometry:
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
+        # steps since the translation / yaw was last measured, and the frame interval, for
+        # the uncertainty of a constant-velocity guess (see _bridge_sigmas)
+        self._since_t = 0
+        self._since_yaw = 0
+        self._last_stamp: float | None = None
+        self._dt = 0.1
         self.last_detection: PlaneDetection | None = None
         # frame index -> (features, matches, new corners, seconds) of track() calls made ahead
         self._tracked: dict[int, tuple] = {}
@@ -252,7 +258,7 @@ class PlanarOdometry:
 
         frames = group_walls(det.walls, self.config.manhattan)
         yaw_prior = self._last_motion[0] if self._last_motion is not None else 0.0
-        self._manhattan.associate(frames, yaw_prior)
+        self._manhattan.associate(frames, yaw_prior, self._bridge_sigmas(False)[1] if self._since_yaw else 0.0)
         t2 = clock()
         timings["manhattan"] = t2 - t1
 
@@ -271,6 +277,9 @@ class PlanarOdometry:
 
         step = None
         lev_motion = (0.0, np.zeros(3), 0.0)  # levelled (yaw, t, yaw variance)
+        if self._last_stamp is not None and frame.stamp > self._last_stamp:
+            self._dt = frame.stamp - self._last_stamp
+        self._last_stamp = frame.stamp
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, det.walls, yaw_prior,
                                               info)
@@ -397,7 +406,7 @@ class PlanarOdometry:
 
         The yaw is the difference of the two views' headings of one local Manhattan frame
         (eq. 1) with their own sigmas; the 1-point RANSAC (eq. 2) only finds ``t`` at that
-        yaw. ``mf_yaw``: ``(yaw, sigma)`` of the dominant usable frame, or None -- a step
+        yaw. ``mf_yaw``: ``(yaw, sigma, frame-to-frame yaw)`` of the dominant usable frame, or None -- a step
         whose translation fails keeps it (a partial step).
         """
         c = self.config.odometry
@@ -412,12 +421,12 @@ class PlanarOdometry:
             if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
                 continue
             yaw = yaw_from_manhattan_headings(f.prev_heading, f.heading, yaw_prior)
-            if mf_yaw is None and f.score >= c.bridge_min_score:
-                mf_yaw = (yaw, yaw_sigma)
             # The matches see the frame-to-frame rotation; the step's yaw also takes back
             # what earlier steps got wrong since the reference (a few tenths of a degree,
             # which moves the next position by well under a millimetre).
             local = yaw_from_manhattan_headings(f.prev_local, f.heading, yaw_prior)
+            if mf_yaw is None and f.score >= c.bridge_min_score:
+                mf_yaw = (yaw, yaw_sigma, local)
             motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
             info.setdefault("dpp", []).append({"status": est.status, "inliers": est.num_inliers,
                                                "track_id": f.track_id, "yaw_sigma": yaw_sigma})
@@ -475,12 +484,15 @@ class PlanarOdometry:
         else:
             yaw, t = 0.0, np.zeros(3)
             how = "zero"
-        sb = c.bridge_sigma_xy
+        self._since_t += 1
+        sb, s_theta = self._bridge_sigmas(how == "zero")
         if mf_yaw is None:
-            cov = np.diag([c.bridge_sigma_xy ** 2, c.bridge_sigma_xy ** 2, math.radians(c.bridge_sigma_theta_deg) ** 2])
+            self._since_yaw += 1
+            cov = np.diag([sb ** 2, sb ** 2, s_theta ** 2])
             pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
             info["bridge"] = how
             return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t, float(cov[2, 2]))
+        self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
         prior = np.array([t[0], t[2]])
         walls = wall_constraints(walls1, walls2, yaw, prior, c)
@@ -492,9 +504,29 @@ class PlanarOdometry:
         cov[1:, 1:] = cov_t + np.eye(2) * c.min_sigma_xy ** 2
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         info["partial"] = {"prior": how, "walls": n_walls}
-        if n_walls:
-            self._last_motion = (float(yaw), t.copy())
+        # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
+        # takes back the errors of earlier guesses): the next guess turns at this rate.
+        self._last_motion = (float(mf_yaw[2]), t.copy())
         return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
+
+    def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
+        """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.
+
+        The guess errs by the velocity change since the last measurement: with
+        accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
+        intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
+        degree at first, growing while nothing is measured, capped at ``bridge_sigma_xy``
+        / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured).
+        """
+        c = self.config.odometry
+        cap_xy, cap_th = c.bridge_sigma_xy, math.radians(c.bridge_sigma_theta_deg)
+        if nothing_known:
+            return cap_xy, cap_th
+        dt2 = self._dt * self._dt
+        s_xy = min(max(c.bridge_accel_xy * dt2 * self._since_t, c.min_sigma_xy), cap_xy)
+        s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
+                       math.radians(c.min_sigma_theta_deg)), cap_th)
+        return s_xy, s_th
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
@@ -509,5 +541,6 @@ class PlanarOdometry:
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([c.min_sigma_xy ** 2, c.min_sigma_xy ** 2,
                                                    math.radians(c.min_sigma_theta_deg) ** 2])
         self._last_motion = (float(yaw), np.asarray(t, dtype=float).copy())
+        self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)

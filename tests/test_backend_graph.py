@@ -178,7 +178,8 @@ def test_bridged_step_is_overridden_and_repaired_by_manhattan():
     res = _chain(steps, info, obs)
     res[10].step.status = STATUS_BRIDGED
     res[10].step.information = np.diag([1e8, 1e8, 1e8])  # a front-end that is wrongly sure
-    g = PlanarPoseGraph()
+    # the default trusts the front-end's stated uncertainty; "override" replaces it
+    g = PlanarPoseGraph(BackendConfig(bridged_policy="override"))
     for r in res:
         g.add_frame(r)
     est = g.optimize()

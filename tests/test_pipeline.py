@@ -167,11 +167,14 @@ def test_demo_runs_the_whole_job(lturn_log, tmp_path, capsys):
 def test_demo_recipe_is_a_valid_synth_config():
     import yaml
 
-    from planar_vo.commands.demo import RECIPE
+    from importlib import resources
+
+    from planar_vo.commands.demo import RECIPE_NAME
     from planar_vo.configtools import from_dict
     from planar_vo.io.synth import SynthConfig
 
-    cfg = from_dict(SynthConfig, yaml.safe_load(RECIPE.read_text()))
+    text = resources.files("planar_vo.data").joinpath(RECIPE_NAME).read_text()  # as installed
+    cfg = from_dict(SynthConfig, yaml.safe_load(text))
     assert cfg.layout == "lturn" and cfg.n_frames == 300 and cfg.seed == 2024
 
 
