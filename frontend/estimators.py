@@ -784,10 +784,15 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     rx = c * Q1[:, 0] + s * Q1[:, 2]
     rz = -s * Q1[:, 0] + c * Q1[:, 2]
     dx, dz = Q2[:, 0] - rx, Q2[:, 2] - rz          # per-match t candidates (eq. 2, our sign)
-    var = (_depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
-           + _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
-           + (opt.pixel_sigma / opt.focal_px) ** 2 * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2))
-    # each hypothesis t_k = d_k is uncertain too: test |d_i - d_k|^2 / (var_i + var_k).
+    # Per axis: a point X = x Z (x normalised) has var(Z) = sigma_Z^2 along the ray and
+    # var(X) = (sigma_px / f)^2 Z^2 + x^2 sigma_Z^2 across it, so depth noise lands on t_z
+    # and barely on t_x (one isotropic variance overstated t_x and understated t_z).
+    vz1 = _depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+    vz2 = _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+    pix = (opt.pixel_sigma / opt.focal_px) ** 2
+    vx = pix * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2) + (Q1[:, 0] / Q1[:, 2]) ** 2 * vz1 + (Q2[:, 0] / Q2[:, 2]) ** 2 * vz2
+    vz = vz1 + vz2 + pix * (Q1[:, 0] ** 2 + Q2[:, 0] ** 2)
+    # each hypothesis t_k = d_k is uncertain too: test the residual against var_i + var_k.
     # Small sets: every match is a hypothesis; large ones: adaptive random batches.
     rng = np.random.default_rng(opt.seed)
     M = len(idx)
@@ -796,8 +801,8 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     while drawn < min(max(needed, 1.0), opt.max_iterations, M):
         hyp = np.arange(M) if M <= 64 else rng.integers(0, M, 64)
         drawn += len(hyp)
-        d2 = ((dx[None, :] - dx[hyp, None]) ** 2 + (dz[None, :] - dz[hyp, None]) ** 2) \
-            / (var[None, :] + var[hyp, None])
+        d2 = ((dx[None, :] - dx[hyp, None]) ** 2 / (vx[None, :] + vx[hyp, None])
+              + (dz[None, :] - dz[hyp, None]) ** 2 / (vz[None, :] + vz[hyp, None]))
         ok = d2 < opt.chi2
         score = np.where(ok, d2, opt.chi2).sum(1)
         k = int(np.argmin(score))
@@ -809,26 +814,28 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
         info.status = NO_MODEL
         return None, info
     inl = best_ok
-    for _ in range(3):  # weighted mean, re-select against it
-        w = 1.0 / var[inl]
-        tx = float((w * dx[inl]).sum() / w.sum())
-        tz = float((w * dz[inl]).sum() / w.sum())
-        new = ((dx - tx) ** 2 + (dz - tz) ** 2) / var < opt.chi2
+    for _ in range(3):  # weighted means, re-select against them
+        wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
+        tx = float((wx * dx[inl]).sum() / wx.sum())
+        tz = float((wz * dz[inl]).sum() / wz.sum())
+        new = (dx - tx) ** 2 / vx + (dz - tz) ** 2 / vz < opt.chi2
         if new.sum() < opt.min_inliers or np.array_equal(new, inl):
             break
         inl = new
-    w = 1.0 / var[inl]
-    chi2 = float((w * ((dx[inl] - tx) ** 2 + (dz[inl] - tz) ** 2)).sum())
+    wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
     n_in = int(inl.sum())
-    factor = chi2 / (2 * n_in - 2) if n_in > 1 else 1.0
-    var_t = factor / w.sum()
+    # reduced chi-square per axis, never below 1: a few agreeing matches must not claim
+    # more precision than their noise model gives
+    fx = max(float((wx * (dx[inl] - tx) ** 2).sum()) / (n_in - 1), 1.0) if n_in > 1 else 1.0
+    fz = max(float((wz * (dz[inl] - tz) ** 2).sum()) / (n_in - 1), 1.0) if n_in > 1 else 1.0
+    chi2 = float((wx * (dx[inl] - tx) ** 2).sum() + (wz * (dz[inl] - tz) ** 2).sum())
     # t = mean(P2 - R P1): dt/dyaw = -mean(dR/dyaw P1) = (-rz, +rx) weighted
-    gx = -float((w * rz[inl]).sum() / w.sum())
-    gz = float((w * rx[inl]).sum() / w.sum())
+    gx = -float((wx * rz[inl]).sum() / wx.sum())
+    gz = float((wz * rx[inl]).sum() / wz.sum())
     g = np.array([1.0, gx, gz])
     cov = yaw_sigma ** 2 * np.outer(g, g)
-    cov[1, 1] += var_t
-    cov[2, 2] += var_t
+    cov[1, 1] += fx / wx.sum()
+    cov[2, 2] += fz / wz.sum()
     mask = np.zeros(N, dtype=bool)
     mask[idx[inl]] = True
     info.inliers = mask
