@@ -21,15 +21,8 @@ from planar_vo.frontend import odometry as odometry_module
 from planar_vo.frontend.odometry import PlanarOdometry
 from planar_vo.frontend.types import (STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
                                       ManhattanObservation, Step)
-from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount, write_synth_log
-
-
-def _render(**kw):
-    res = kw.pop("resolution", None)
-    cfg = SynthConfig(**kw)
-    if res is not None:
-        cfg = cfg.at_resolution(*res)
-    return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg))
+from planar_vo.io.synth import SynthConfig, write_synth_log
+from synthhelpers import render as _render
 
 
 def _step_errors(results, frames):

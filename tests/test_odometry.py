@@ -12,16 +12,7 @@ from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
 from planar_vo.backend.graph import PlanarPoseGraph
 from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
 from planar_vo.io.types import CameraIntrinsics, RGBDFrame
-
-
-def _render(**kw):
-    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
-
-    res = kw.pop("resolution", None)
-    cfg = SynthConfig(**kw)
-    if res is not None:
-        cfg = cfg.at_resolution(*res)
-    return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg))
+from synthhelpers import render as _render
 
 
 @pytest.fixture(scope="module")
