@@ -74,3 +74,31 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+class AtomicTree:
+    """A file or folder written by a library that opens the path itself (e.g. rosbags).
+
+    ``tmp_path`` lies in a fresh hidden folder beside ``path`` and has the same name, so
+    names the library derives from it (a rosbag2 folder names its storage file after
+    itself) are right once ``commit()`` moves it onto ``path``; ``discard()`` removes it.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        directory = self.path.parent if str(self.path.parent) else Path(".")
+        if not directory.is_dir():
+            raise InputError(f"{self.path}: output folder {directory} does not exist; create it first")
+        self._dir = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=directory))
+        self.tmp_path = self._dir / self.path.name
+
+    def commit(self) -> None:
+        import shutil
+        if self.path.is_dir() and not self.path.is_symlink():
+            shutil.rmtree(self.path)  # os.replace cannot replace a non-empty folder
+        os.replace(self.tmp_path, self.path)
+        self._dir.rmdir()
+
+    def discard(self) -> None:
+        import shutil
+        shutil.rmtree(self._dir, ignore_errors=True)

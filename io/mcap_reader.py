@@ -1,4 +1,4 @@
-"""Streaming reader for RGB-D logs stored as MCAP (ROS 2 CDR or Foxglove protobuf).
+"""Streaming reader for RGB-D logs stored as MCAP (ROS 2 CDR, ROS 1 or Foxglove protobuf).
 
 Messages are read chunk by chunk through the MCAP chunk index (or, for a log without a
 readable summary such as a recording cut short, by a linear scan of its records), so
@@ -29,6 +29,7 @@ from planar_vo.io.codecs import (DecodeError, decode_compressed_color, decode_co
 from planar_vo.io.log import (DEPTH_SAMPLES, INTRINSICS_FLAGS, LogSummary, RGBDLog, _empty_stats,
                               check_range, depth_valid_fraction)
 from planar_vo.io.pairing import COLOR, DEPTH, Pair, StampPairer, Unpaired
+from planar_vo.io.rosmsg import Ros1DecoderFactory
 from planar_vo.io.topics import choose_topics
 from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
@@ -119,12 +120,11 @@ class McapRGBDLog(RGBDLog):
         self.size = os.fstat(self._file.fileno()).st_size
         head = self._file.read(8)
         if head.startswith(_ROSBAG1_MAGIC):
-            raise InputError(f"{self.path}: a ROS 1 bag, not MCAP; convert it first "
-                             "(`mcap convert in.bag out.mcap`)")
+            raise InputError(f"{self.path}: a ROS 1 bag, not MCAP; open it with open_log()")
         if head != MCAP_MAGIC:
             raise InputError(f"{self.path}: not an MCAP file (no MCAP magic bytes); give an .mcap log "
                              "or a TUM RGB-D folder")
-        self._factories = (Ros2Decoders(), ProtobufDecoders())
+        self._factories = (Ros2Decoders(), ProtobufDecoders(), Ros1DecoderFactory())
         self._decoders: dict[int, object] = {}
         self._file.seek(0)
         try:
@@ -150,6 +150,17 @@ class McapRGBDLog(RGBDLog):
             if self.scan_stop is not None and not self._channels:
                 raise InputError(f"{self.path}: no readable MCAP records "
                                  f"({self.scan_stop.where(self.size)})")
+        self._choose_streams(color_topic, depth_topic, info_topic)
+
+    def _choose_streams(self, color_topic, depth_topic, info_topic) -> None:
+        """Sort the channels by message type and pick the topics a run reads.
+
+        The one place where message types are dispatched to roles, for every container
+        (MCAP here, ROS 1 bags and rosbag2 folders in :mod:`planar_vo.io.rosbags_reader`):
+        needs ``self._channels`` (id -> object with ``topic``, ``schema_id``) and
+        ``self._schemas`` (id -> object with ``name``). A new role (e.g. odometry) is a
+        kind in :func:`planar_vo.io.messages.schema_kind` and a topic list picked here.
+        """
         self._kinds = {}
         for cid, ch in self._channels.items():
             schema = self._schemas.get(ch.schema_id)
@@ -592,7 +603,7 @@ class McapRGBDLog(RGBDLog):
     def format(self) -> str:
         """``"MCAP (ROS 2, cdr)"`` or ``"MCAP (Foxglove, protobuf)"`` from the colour channel."""
         enc = next(ch.message_encoding for ch in self._channels.values() if ch.topic == self.color_topic)
-        kind = {"cdr": "ROS 2", "protobuf": "Foxglove"}.get(enc, self.profile or "unknown profile")
+        kind = {"cdr": "ROS 2", "protobuf": "Foxglove", "ros1": "ROS 1"}.get(enc, self.profile or "unknown profile")
         return f"MCAP ({kind}, {enc})"
 
     def _count(self, topic: str) -> int:

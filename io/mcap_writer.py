@@ -92,12 +92,15 @@ class RGBDLogWriter:
         self._mount_written = mount is None
         self._closed = False
 
+        self._open_writer(chunk_compression, chunk_size)
+
+    def _open_writer(self, chunk_compression: str, chunk_size: int) -> None:
         from mcap.writer import CompressionType
         compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                        "none": CompressionType.NONE}[chunk_compression]
         self._file = AtomicFile(self.path)
         try:
-            if profile == "ros2":
+            if self.profile == "ros2":
                 from mcap_ros2.writer import Writer
                 self._writer = Writer(self._file.file, chunk_size=chunk_size, compression=compression)
                 self._schemas = {name: self._writer.register_msgdef(name, text)
@@ -108,6 +111,9 @@ class RGBDLogWriter:
         except BaseException:
             self._file.discard()
             raise
+
+    def _finish(self) -> None:
+        self._writer.finish()
 
     # ------------------------------------------------------------------ messages
     def _put(self, topic: str, stamp: float, ros2_type: str, ros2_msg, fox_msg_fn) -> None:
@@ -176,7 +182,7 @@ class RGBDLogWriter:
             return
         try:
             self._write_mount(0.0)
-            self._writer.finish()
+            self._finish()
         except BaseException:
             self.abort()
             raise

@@ -210,11 +210,20 @@ def _frame_of(msg) -> str:
 
 def parse_image(kind: str, msg) -> ImageMessage:
     stamp, frame = _stamp_of(msg), _frame_of(msg)
+    # bytes from mcap's decoders, a uint8 array from rosbags'
     data = bytes(msg.data) if not isinstance(msg.data, bytes) else msg.data
     if kind == IMAGE:
         return ImageMessage(stamp, frame, True, data, int(msg.width), int(msg.height),
                             msg.encoding, int(msg.step), bool(getattr(msg, "is_bigendian", 0)))
     return ImageMessage(stamp, frame, False, data, format=msg.format)
+
+
+def _either(msg, name: str):
+    """Field ``name`` in ROS 2 spelling, else ROS 1 / Foxglove upper case (lists or arrays)."""
+    value = getattr(msg, name, None)
+    if value is None or len(value) == 0:
+        value = getattr(msg, name.upper(), None)
+    return value if value is not None else []
 
 
 def parse_camera_info(msg, rectified: bool) -> CameraIntrinsics | None:
@@ -223,9 +232,8 @@ def parse_camera_info(msg, rectified: bool) -> CameraIntrinsics | None:
     For rectified images (``rectified``) the projection matrix P applies and distortion
     is zero, as in ROS; otherwise K and D.
     """
-    K = list(getattr(msg, "k", None) or getattr(msg, "K", []))
-    P = list(getattr(msg, "p", None) or getattr(msg, "P", []))
-    D = tuple(float(x) for x in (getattr(msg, "d", None) or getattr(msg, "D", [])))
+    K, P, D = (list(_either(msg, name)) for name in ("k", "p", "d"))
+    D = tuple(float(x) for x in D)
     w, h = int(msg.width), int(msg.height)
     if rectified and len(P) == 12 and P[0] > 0 and P[5] > 0:
         return CameraIntrinsics(w, h, float(P[0]), float(P[5]), float(P[2]), float(P[6]))
