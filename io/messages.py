@@ -150,6 +150,24 @@ def ros2_pose_stamped(stamp: float, frame_id: str, T: np.ndarray) -> dict:
     return {"header": ros2_header(stamp, frame_id), "pose": {"position": t, "orientation": q}}
 
 
+_ZERO36 = [0.0] * 36
+
+
+def ros2_odometry(stamp: float, frame_id: str, child_frame_id: str, T: np.ndarray) -> dict:
+    """nav_msgs/Odometry with pose ``T_frame_child``; twist and covariances zero (unknown)."""
+    t, q = _xyz_quat(T)
+    zero = {"x": 0.0, "y": 0.0, "z": 0.0}
+    return {"header": ros2_header(stamp, frame_id), "child_frame_id": child_frame_id,
+            "pose": {"pose": {"position": t, "orientation": q}, "covariance": _ZERO36},
+            "twist": {"twist": {"linear": zero, "angular": dict(zero)}, "covariance": _ZERO36}}
+
+
+def ros2_path(stamp: float, frame_id: str, poses: np.ndarray) -> dict:
+    """nav_msgs/Path of ``poses`` (N, 4, 4), every pose stamped ``stamp``."""
+    return {"header": ros2_header(stamp, frame_id),
+            "poses": [ros2_pose_stamped(stamp, frame_id, T) for T in poses]}
+
+
 def _fill_pose(pose, T: np.ndarray) -> None:
     p = pose7_from_matrix(T)
     pose.position.x, pose.position.y, pose.position.z = p[0], p[1], p[2]

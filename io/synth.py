@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -876,29 +877,32 @@ def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfi
 
 
 def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
-                    depth_encoding: str = "png", progress: bool = True) -> dict:
+                    depth_encoding: str = "png", progress: bool = True, container: str = "mcap") -> dict:
     """Render ``cfg`` into an MCAP log plus ``<out>.gt.tum``; returns ``{'log': ..., 'ground_truth': ...}``.
 
     The log looks like an iai_kinect2 recording (``/kinect2/qhd/...`` images and
     camera_info, the mount on ``/tf_static``, ground truth on ``/ground_truth``) in the
     ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
+    ``container`` (:data:`planar_vo.io.rosbags_writer.CONTAINERS`) writes the same
+    messages as a ROS 1 bag, a rosbag2 folder or a ROS 1-profile MCAP instead.
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from planar_vo.io.mcap_writer import RGBDLogWriter
+    from planar_vo.io.rosbags_writer import open_log_writer
 
-    out = os.fspath(out_path)
+    out = os.fspath(out_path).rstrip("/") or "/"
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise InputError(f"output {out}: directory {parent} does not exist; create it first")
-    base = out[:-5] if out.endswith(".mcap") else out
+    base = re.sub(r"\.(mcap|bag)$", "", out.rstrip("/"))
     gt_path = base + ".gt.tum"
     renderer = SynthRenderer(cfg)
     stamps, poses = _trajectory(cfg, renderer.scene)
     T_wc = np.empty((cfg.n_frames, 4, 4))
     try:
-        writer = RGBDLogWriter(out, renderer.intrinsics, profile=profile, mount=renderer.mount,
-                               color_encoding=color_encoding, depth_encoding=depth_encoding)
+        writer = open_log_writer(out, renderer.intrinsics, container=container, profile=profile,
+                                 mount=renderer.mount, color_encoding=color_encoding,
+                                 depth_encoding=depth_encoding)
     except ValueError as exc:
         raise InputError(f"synthetic log {out}: {exc}") from None
 

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections import defaultdict
 from pathlib import Path
@@ -21,7 +22,7 @@ from planar_vo.io.atomic import atomic_path, write_text_atomic
 from planar_vo.io.types import Trajectory
 
 POSES_METADATA = "planar_vo.trajectories"
-_TOPIC = re.compile(r"^/planar_vo/(?P<name>.+)/(?P<kind>pose|path)$")
+_TOPIC = re.compile(r"^/planar_vo/(?P<name>.+)/(?P<kind>pose|odom|path)$")
 
 
 # ------------------------------------------------------------------------------ TUM
@@ -74,50 +75,109 @@ def _check_traj(traj, where: str) -> None:
 
 # ---------------------------------------------------------------------- poses MCAP
 
+#: ``write_poses_mcap`` formats: Foxglove protobuf schemas, or ROS 2 messages (CDR) in a
+#: rosbag2-style MCAP file, which Foxglove, rosbags and evo (``evo_traj bag2 FILE``) read.
+POSES_FORMATS = ("foxglove", "ros2")
+
+
+def poses_format_for(log_format: str) -> str:
+    """``auto`` poses format for a log's ``format``: ``ros2`` for ROS logs (ROS 1 or 2 MCAP,
+    bags, rosbag2 folders), ``foxglove`` for the rest (Foxglove MCAP, TUM folders)."""
+    return "ros2" if "ROS" in log_format or "rosbag" in log_format else "foxglove"
+
+
 def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=None,
-                     path_period: float = 1.0, path_max_poses: int = 256) -> None:
-    """Write trajectories for Foxglove, atomically.
+                     path_period: float = 1.0, path_max_poses: int = 256, format: str = "foxglove") -> None:
+    """Write trajectories for Foxglove and ROS tools, atomically.
 
     ``trajectories``: name -> :class:`Trajectory` (names become topic segments).
-    ``transforms``: optional list of ``(stamp, parent, child, T (4, 4))`` written as
-    ``foxglove.FrameTransforms`` on ``/tf`` (one message per distinct stamp).
-    The path on ``/planar_vo/N/path`` grows: every ``path_period`` seconds of the
-    trajectory a ``PosesInFrame`` with the path so far, thinned evenly to at most
-    ``path_max_poses`` poses (so the file grows linearly, not quadratically, with the
-    length), and one last message with every pose.
-    """
-    from mcap_protobuf.writer import Writer
+    ``transforms``: optional list of ``(stamp, parent, child, T (4, 4))`` written on ``/tf``
+    (one message per distinct stamp). ``format``:
 
+    * ``foxglove``: ``foxglove.PoseInFrame`` per pose on ``/planar_vo/N/pose``,
+      ``foxglove.PosesInFrame`` paths on ``/planar_vo/N/path``, ``foxglove.FrameTransforms``.
+    * ``ros2``: ``nav_msgs/msg/Odometry`` per pose on ``/planar_vo/N/odom`` (``child_frame_id``
+      is the trajectory's), ``nav_msgs/msg/Path`` on ``/planar_vo/N/path``,
+      ``tf2_msgs/msg/TFMessage``; written by rosbags' rosbag2 MCAP storage, so that
+      ``evo_traj bag2 poses.mcap /planar_vo/smoothed/odom`` reads it as it is.
+
+    The path grows: every ``path_period`` seconds of the trajectory a message with the
+    path so far, thinned evenly to at most ``path_max_poses`` poses (so the file grows
+    linearly, not quadratically, with the length), and one last message with every pose.
+    """
+    if format not in POSES_FORMATS:
+        raise ValueError(f"poses format {format!r} is not one of {POSES_FORMATS}")
     for name, traj in trajectories.items():
         if not re.fullmatch(r"[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*", name):
             raise ValueError(f"trajectory name {name!r}: use letters, digits, '_', '-' (and '/')")
         _check_traj(traj, f"write_poses_mcap[{name}]")
+    events = _pose_events(trajectories, transforms, path_period, path_max_poses, format == "ros2")
+    if format == "ros2":
+        _write_poses_rosbag2(Path(path), events)
+        return
+    from mcap_protobuf.writer import Writer
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         w = Writer(f)
         w.add_metadata(POSES_METADATA, {name: traj.child_frame_id for name, traj in trajectories.items()})
-        # Messages are written in log-time order across all topics.
-        events = []  # (stamp, order, topic, builder)
-        for name, traj in trajectories.items():
-            order = np.argsort(traj.stamps, kind="stable")
-            stamps, poses = traj.stamps[order], traj.poses[order]
-            for i, (s, T) in enumerate(zip(stamps, poses)):
-                events.append((s, 1, f"/planar_vo/{name}/pose",
-                               lambda s=s, T=T, f=traj.frame_id: m.foxglove_pose_in_frame(s, f, T)))
-            for i in _path_cuts(stamps, path_period):
-                events.append((stamps[i], 2, f"/planar_vo/{name}/path",
-                               lambda i=i, s=stamps, P=poses, f=traj.frame_id, last=(i == len(stamps) - 1):
-                               m.foxglove_poses_in_frame(s[i], f, P[:i + 1] if last else
-                                                         _thin(P[:i + 1], path_max_poses))))
-        by_stamp = defaultdict(list)
-        for s, parent, child, T in transforms or ():
-            by_stamp[float(s)].append((float(s), parent, child, np.asarray(T, float)))
-        for s, group in by_stamp.items():
-            events.append((s, 0, "/tf", lambda g=group: m.foxglove_frame_transforms(g)))
-        events.sort(key=lambda e: (e[0], e[1]))
-        for s, _, topic, build in events:
+        for s, _, topic, _, build in events:
             t = m.stamp_to_ns(s)
             w.write_message(topic, build(), log_time=t, publish_time=t)
         w.finish()
+
+
+def _pose_events(trajectories, transforms, path_period: float, path_max_poses: int, ros2: bool) -> list:
+    """``(stamp, order, topic, ROS 2 type, builder)`` for every message, in log-time order;
+    builders give ROS 2 dicts (``ros2``) or Foxglove protobuf messages."""
+    events = []
+    for name, traj in trajectories.items():
+        order = np.argsort(traj.stamps, kind="stable")
+        stamps, poses, frame = traj.stamps[order], traj.poses[order], traj.frame_id
+        for s, T in zip(stamps, poses):
+            if ros2:
+                events.append((s, 1, f"/planar_vo/{name}/odom", "nav_msgs/msg/Odometry",
+                               lambda s=s, T=T, c=traj.child_frame_id: m.ros2_odometry(s, frame, c, T)))
+            else:
+                events.append((s, 1, f"/planar_vo/{name}/pose", None,
+                               lambda s=s, T=T: m.foxglove_pose_in_frame(s, frame, T)))
+        build_path = m.ros2_path if ros2 else m.foxglove_poses_in_frame
+        for i in _path_cuts(stamps, path_period):
+            P = poses[:i + 1] if i == len(stamps) - 1 else _thin(poses[:i + 1], path_max_poses)
+            events.append((stamps[i], 2, f"/planar_vo/{name}/path", "nav_msgs/msg/Path",
+                           lambda s=stamps[i], P=P, b=build_path: b(s, frame, P)))
+    by_stamp = defaultdict(list)
+    for s, parent, child, T in transforms or ():
+        by_stamp[float(s)].append((float(s), parent, child, np.asarray(T, float)))
+    tf = m.ros2_tf_message if ros2 else m.foxglove_frame_transforms
+    for s, group in by_stamp.items():
+        events.append((s, 0, "/tf", "tf2_msgs/msg/TFMessage", lambda g=group: tf(g)))
+    events.sort(key=lambda e: (e[0], e[1]))
+    return events
+
+
+def _write_poses_rosbag2(path: Path, events: list) -> None:
+    """ROS 2 messages in a rosbag2 MCAP file at ``path``, atomically (rosbags' metadata.yaml
+    is dropped: rosbags, and so evo, open the bare file)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from planar_vo.io import rosmsg
+    from planar_vo.io.atomic import AtomicTree
+    from planar_vo.io.rosbags_writer import ROSBAG2_VERSION
+    if path.suffix != ".mcap":
+        raise ValueError(f"{path}: a ROS 2 poses file must be named *.mcap")
+    # rosbags names the storage file after the bag folder: a folder "poses" holds poses.mcap.
+    tree = AtomicTree(path.with_suffix(""))
+    try:
+        w = Writer(tree.tmp_path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
+        w.open()
+        conns = {}
+        for s, _, topic, typename, build in events:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typename, typestore=rosmsg.typestore(rosmsg.CDR))
+            w.write(conns[topic], m.stamp_to_ns(s), rosmsg.serialize(rosmsg.CDR, typename, build()))
+        w.close()
+        os.replace(tree.tmp_path / path.name, path)
+    finally:
+        tree.discard()
 
 
 def _path_cuts(stamps: np.ndarray, period: float) -> list[int]:
@@ -140,8 +200,15 @@ def _thin(poses: np.ndarray, max_poses: int) -> np.ndarray:
     return poses[idx]
 
 
+class _PoseOf:
+    """An Odometry message seen as a PoseStamped (its pose without the covariance)."""
+
+    def __init__(self, odometry):
+        self.header, self.pose = odometry.header, odometry.pose.pose
+
+
 def read_poses_mcap(path) -> dict[str, Trajectory]:
-    """Read back the per-pose topics written by :func:`write_poses_mcap`."""
+    """Read back the per-pose topics written by :func:`write_poses_mcap` (either format)."""
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
     from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
@@ -159,9 +226,13 @@ def read_poses_mcap(path) -> dict[str, Trajectory]:
                     children.update(meta.metadata)
             for schema, channel, _, msg in reader.iter_decoded_messages():
                 match = _TOPIC.match(channel.topic)
-                if not match or match["kind"] != "pose":
+                if not match or match["kind"] == "path":
                     continue
-                stamp, frame, T = m.parse_pose(msg)
+                if match["kind"] == "odom":  # nav_msgs/Odometry: the child frame is in the message
+                    children[match["name"]] = msg.child_frame_id
+                    stamp, frame, T = m.parse_pose(_PoseOf(msg))
+                else:
+                    stamp, frame, T = m.parse_pose(msg)
                 entry = out.setdefault(match["name"], ([], [], frame))
                 entry[0].append(stamp)
                 entry[1].append(T)

@@ -61,6 +61,9 @@ class MountConfig:
 class OutputConfig:
     plot: bool = True
     poses_mcap: bool = True
+    #: poses.mcap schemas: ``auto`` (the log's family: Foxglove for Foxglove MCAP and TUM
+    #: folders, ROS 2 messages for ROS logs), ``ros2`` or ``foxglove``.
+    poses_format: Literal["auto", "ros2", "foxglove"] = "auto"
 
 
 @dataclass

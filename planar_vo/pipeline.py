@@ -7,7 +7,8 @@ writes the run folder:
 
 ``raw.tum`` / ``smoothed.tum``  camera optical-frame poses ``T_odom_cam``, one line per
                                 colour frame with a pose, stamped with its colour stamp;
-``poses.mcap``                  both trajectories and the frame tree (Foxglove schemas);
+``poses.mcap``                  both trajectories and the frame tree (ROS 2 messages for ROS logs,
+                                Foxglove schemas otherwise: ``output.poses_format``);
 ``report.json``                 counts, statuses, wall and CPU time per stage, frames per second;
 ``config.yaml``                 the resolved configuration;
 ``trajectory.png``              raw, smoothed and ground truth (when known), from above.
@@ -244,6 +245,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     prepared = side.submit(_prepare_outputs, config)
     side.shutdown(wait=False)
     with open_input(log_path, config) as log:
+        log_format = getattr(log, "format", "")
         intr = log.intrinsics
         mount = resolve_mount(log.mount, config)
         odo = PlanarOdometry(intr, mount, config.frontend)
@@ -317,7 +319,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
     cpu["outputs_import_background"] = prepared.result()
     t0, c0 = time.perf_counter(), time.thread_time()
-    files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
+    files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt, log_format)
     files["steps"] = _write_steps(out / "steps.csv", steps)
     timings["write"] += time.perf_counter() - t0
     cpu["write"] += time.thread_time() - c0
@@ -551,8 +553,9 @@ def _atomic_text(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt) -> dict:
-    from planar_vo.io.trajectory import write_poses_mcap, write_tum_trajectory
+def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt,
+                   log_format: str = "") -> dict:
+    from planar_vo.io.trajectory import poses_format_for, write_poses_mcap, write_tum_trajectory
 
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
@@ -565,7 +568,9 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
     if config.output.poses_mcap:
         transforms = [(s, "odom", "base_link", se2_to_matrix(p)) for s, p in zip(stamps, smoothed)]
         transforms.append((stamps[0], "base_link", "camera_optical_frame", T_base_cam))
-        write_poses_mcap(out / "poses.mcap", {"raw": raw_traj, "smoothed": smooth_traj}, transforms=transforms)
+        fmt = config.output.poses_format
+        write_poses_mcap(out / "poses.mcap", {"raw": raw_traj, "smoothed": smooth_traj}, transforms=transforms,
+                         format=poses_format_for(log_format) if fmt == "auto" else fmt)
         files["poses_mcap"] = str(out / "poses.mcap")
     if config.output.plot:
         from planar_vo.plotting import plot_trajectories

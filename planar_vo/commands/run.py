@@ -34,16 +34,21 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
         ov["solver"] = "online"
     if getattr(args, "no_plot", False):
         ov["output"]["plot"] = False
+    if getattr(args, "poses_format", None) is not None:
+        ov["output"]["poses_format"] = args.poses_format
     return {k: v for k, v in ov.items() if v != {}}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", help="MCAP log (ROS 2 or Foxglove schemas) or TUM RGB-D folder")
+    p.add_argument("log", help="MCAP log (ROS 2, ROS 1 or Foxglove), ROS 1 .bag, rosbag2 folder or TUM RGB-D folder")
     p.add_argument("--out", required=True, help="run folder to write (created if missing)")
     p.add_argument("--config", help="YAML configuration file (see config.yaml of any run)")
     p.add_argument("--online", action="store_true", help="iSAM2 per frame instead of batch LM")
     p.add_argument("--gt", help="ground truth (TUM) to draw in trajectory.png")
     p.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
+    p.add_argument("--poses-format", choices=("auto", "ros2", "foxglove"),
+                   help="poses.mcap schemas: ROS 2 messages (evo_traj bag2, ROS tools, Foxglove) or Foxglove "
+                        "protobuf; default auto: the log's family (Foxglove for Foxglove MCAP and TUM folders)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     add_input_arguments(p)
 

@@ -1,6 +1,6 @@
 """Render a synthetic corridor RGB-D log (MCAP) with exact ground truth.
 
-Writes OUT.mcap shaped like an iai_kinect2 recording (qhd colour and registered depth,
+Writes OUT.mcap (or a ROS 1 bag, a rosbag2 folder: ``--container``) shaped like an iai_kinect2 recording (qhd colour and registered depth,
 camera_info, the camera mount on /tf_static, the true camera pose on /ground_truth) and
 OUT.gt.tum (TUM: t tx ty tz qx qy qz qw, camera optical frame in the world).
 """
@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=300, help="number of frames at --rate Hz (default: 300)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of scene, texture and noise (default: 0)")
     parser.add_argument("--profile", default="ros2", help="ros2 (iai_kinect2-like CDR) or foxglove (protobuf)")
+    parser.add_argument("--container", default="mcap",
+                        help="mcap (default) | bag (ROS 1 bag, OUT.bag) | rosbag2-sqlite3 | rosbag2-mcap "
+                             "(rosbag2 folder OUT/) | mcap-ros1 (MCAP in the ROS 1 profile)")
     parser.add_argument("--texture", default="medium", help="none | low | medium | rich (default: medium)")
     parser.add_argument("--pitch-deg", type=float, default=10.0, help="camera pitch, positive down (default: 10)")
     parser.add_argument("--roll-deg", type=float, default=2.0, help="camera roll (REP 103, default: 2)")
@@ -94,14 +97,38 @@ def main(args: argparse.Namespace) -> int:
         for field, flag in _FLAGS.items():
             msg = msg.replace(f"SynthConfig.{field}:", f"{flag}:")
         raise InputError(msg) from None
-    if not str(args.out).endswith(".mcap"):
-        raise InputError(f"output {args.out!r}: the log name must end in .mcap")
+    _check_container(args)
     t0 = time.perf_counter()
     paths = write_synth_log(cfg, args.out, profile=args.profile, color_encoding=args.color_encoding,
-                            depth_encoding=args.depth_encoding, progress=not args.quiet)
+                            depth_encoding=args.depth_encoding, progress=not args.quiet,
+                            container=args.container)
     dt = time.perf_counter() - t0
-    size_mb = os.path.getsize(paths["log"]) / 1e6
+    size_mb = _size(paths["log"]) / 1e6
     print(f"log: {paths['log']}  ({cfg.n_frames} frames {cfg.width}x{cfg.height}, {size_mb:.1f} MB, "
           f"{cfg.path_length:.1f} m, {cfg.n_frames / dt:.1f} frames/s)")
     print(f"ground truth: {paths['ground_truth']}")
     return 0
+
+
+def _check_container(args: argparse.Namespace) -> None:
+    """The output name fits the container: ``.mcap`` file, ``.bag`` file, or a new folder."""
+    from planar_vo.errors import InputError
+    from planar_vo.io.rosbags_writer import CONTAINERS
+    out = str(args.out).rstrip("/")
+    if args.container not in CONTAINERS:
+        raise InputError(f"--container {args.container!r}: use one of {', '.join(CONTAINERS)}")
+    if args.container != "mcap" and args.profile != "ros2":
+        raise InputError(f"--profile {args.profile} applies to --container mcap only (ROS containers hold "
+                         "ROS messages)")
+    suffix = {"mcap": ".mcap", "mcap-ros1": ".mcap", "bag": ".bag"}.get(args.container)
+    if suffix is not None and not out.endswith(suffix):
+        raise InputError(f"output {args.out!r}: the log name must end in {suffix} for --container {args.container}")
+    if suffix is None and (out.endswith((".mcap", ".bag", ".db3")) or os.path.isfile(out)):
+        raise InputError(f"output {args.out!r}: --container {args.container} writes a folder; "
+                         "give a folder name without a file suffix")
+
+
+def _size(path: str) -> int:
+    if os.path.isdir(path):
+        return sum(os.path.getsize(os.path.join(path, f)) for f in os.listdir(path))
+    return os.path.getsize(path)
