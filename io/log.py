@@ -188,7 +188,7 @@ def open_log(path, *, color_topic: str | None = None, depth_topic: str | None = 
     ``intrinsics`` overrides any calibration found in the log. ``sync_tolerance``:
     largest colour/depth stamp difference (s) accepted when pairing.
     """
-    from planar_vo.io.rosbags_reader import RosbagsRGBDLog, is_rosbag1, rosbag2_folder
+    from planar_vo.io.rosbags_reader import is_rosbag1, open_ros_log, rosbag2_folder
 
     p = Path(path)
     if not p.exists():
@@ -200,7 +200,7 @@ def open_log(path, *, color_topic: str | None = None, depth_topic: str | None = 
     topics = {"color_topic": color_topic, "depth_topic": depth_topic, "info_topic": info_topic}
     folder = rosbag2_folder(p)
     if folder is not None or (p.is_file() and is_rosbag1(p)):
-        return RosbagsRGBDLog(folder or p, **topics, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
+        return open_ros_log(folder or p, **topics, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
     if p.is_dir():
         _reject_rosbag2_without_metadata(p)
         if any(t is not None for t in topics.values()):

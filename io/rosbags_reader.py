@@ -61,6 +61,21 @@ class _Stop:
         return f"{self.reason}; last readable message at {_fmt_stamp(self.last_stamp)}"
 
 
+def open_ros_log(path: Path, **kwargs) -> McapRGBDLog:
+    """A ROS 1 bag or rosbag2 folder for streaming (``kwargs`` as for RosbagsRGBDLog).
+
+    rosbags needs an MCAP's summary; when a rosbag2 folder's single ``.mcap`` file has none
+    (a recording cut short), the MCAP reader reads what it can of that file instead.
+    """
+    try:
+        return RosbagsRGBDLog(path, **kwargs)
+    except InputError:
+        files = sorted(path.glob("*.mcap")) if path.is_dir() else []
+        if len(files) != 1 or _storage(path) != "mcap":
+            raise
+    return McapRGBDLog(files[0], **kwargs)
+
+
 def rosbag2_folder(path: Path) -> Path | None:
     """The rosbag2 folder ``path`` names (the folder or its ``metadata.yaml``), or None."""
     if path.is_file() and path.name == "metadata.yaml":
@@ -97,7 +112,8 @@ class RosbagsRGBDLog(McapRGBDLog):
     def _open_container(self) -> None:
         from rosbags.highlevel import AnyReader
         bag = self.path.is_file()
-        self.container = "ROS 1 bag" if bag else f"rosbag2 {_storage(self.path)}"
+        self.container = "ROS 1 bag" if bag else "rosbag2 folder"
+        self.storage = "ros1" if bag else _storage(self.path)
         # A .bag suffix is how rosbags tells ROS 1 from rosbag2; a bag by another name is linked.
         src = self.path if not bag or self.path.suffix == ".bag" else _bag_alias(self.path)
         try:
@@ -159,8 +175,8 @@ class RosbagsRGBDLog(McapRGBDLog):
 
     @property
     def format(self) -> str:
-        """``"ROS 1 bag (ros1)"``, ``"rosbag2 sqlite3 (cdr)"`` or ``"rosbag2 mcap (cdr)"``."""
-        return f"{self.container} ({self._channels and next(iter(self._channels.values())).message_encoding})"
+        """``"ROS 1 bag (ros1)"``, ``"rosbag2 (sqlite3, cdr)"`` or ``"rosbag2 (mcap, cdr)"``."""
+        return "ROS 1 bag (ros1)" if self.storage == "ros1" else f"rosbag2 ({self.storage}, cdr)"
 
 
 def _first_line(exc: Exception) -> str:

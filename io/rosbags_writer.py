@@ -8,6 +8,8 @@ written by ``rosbags``' bag writers (or ``mcap``'s, for the ROS 1 profile of MCA
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 from planar_vo.io import rosmsg
 from planar_vo.io.atomic import AtomicFile, AtomicTree
 from planar_vo.io.mcap_writer import RGBDLogWriter
@@ -55,6 +57,9 @@ class RosLogWriter(RGBDLogWriter):
             self._writer.start(profile="ros1", library="planar-vo")
             return
         self._file = AtomicTree(self.path)
+        # One thread makes every call into the rosbags writer: its sqlite3 connection may
+        # only be used by the thread that opened it, and callers write from worker threads.
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-bag-writer")
         try:
             if self.container == "bag":
                 from rosbags.rosbag1 import Writer
@@ -63,10 +68,15 @@ class RosLogWriter(RGBDLogWriter):
                 from rosbags.rosbag2 import StoragePlugin, Writer
                 plugin = StoragePlugin.SQLITE3 if self.container.endswith("sqlite3") else StoragePlugin.MCAP
                 self._writer = Writer(self._file.tmp_path, version=ROSBAG2_VERSION, storage_plugin=plugin)
-            self._writer.open()
+            self._call(self._writer.open)
         except BaseException:
             self._file.discard()
+            self._thread.shutdown()
             raise
+
+    def _call(self, fn, *args, **kwargs):
+        thread = getattr(self, "_thread", None)
+        return fn(*args, **kwargs) if thread is None else thread.submit(fn, *args, **kwargs).result()
 
     def _connection(self, topic: str, typename: str):
         conn = self._connections.get(topic)
@@ -77,7 +87,8 @@ class RosLogWriter(RGBDLogWriter):
                 schema = self._writer.register_schema(name, "ros1msg", text.encode("utf-8"))
                 conn = self._writer.register_channel(topic, rosmsg.ROS1, schema, {"md5sum": md5})
             else:
-                conn = self._writer.add_connection(topic, typename, typestore=rosmsg.typestore(self.encoding))
+                conn = self._call(self._writer.add_connection, topic, typename,
+                                  typestore=rosmsg.typestore(self.encoding))
             self._connections[topic] = conn
         return conn
 
@@ -89,10 +100,19 @@ class RosLogWriter(RGBDLogWriter):
         if self.container == "mcap-ros1":
             self._writer.add_message(conn, log_time=t, data=data, publish_time=t)
         else:
-            self._writer.write(conn, t, data)
+            self._call(self._writer.write, conn, t, data)
 
     def _finish(self) -> None:
         if self.container == "mcap-ros1":
             self._writer.finish()
-        else:
-            self._writer.close()
+            return
+        try:
+            self._call(self._writer.close)
+        finally:
+            self._thread.shutdown()
+
+    def abort(self) -> None:
+        super().abort()
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            thread.shutdown(wait=False)

@@ -1,0 +1,256 @@
+"""One synthetic log in every container: ROS 2 MCAP, Foxglove MCAP, ROS 1 bag, rosbag2 sqlite3
+and mcap folders, ROS 1-profile MCAP. Frames, calibration, mount, ground truth and the run's
+raw.tum must not depend on the container; damaged or incomplete containers give one line."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planar_vo.config import load_config
+from planar_vo.io import open_log
+from planar_vo.io.synth import SynthConfig, write_synth_log
+from planar_vo.io.trajectory import read_poses_mcap, read_tum_trajectory, write_poses_mcap
+from planar_vo.io.types import Trajectory
+
+from test_cli_io import one_line_error
+
+#: name -> (container, profile, output name)
+CONTAINERS = {
+    "ros2_mcap": ("mcap", "ros2", "log.mcap"),
+    "foxglove_mcap": ("mcap", "foxglove", "log.mcap"),
+    "bag": ("bag", "ros2", "log.bag"),
+    "rosbag2_sqlite3": ("rosbag2-sqlite3", "ros2", "log"),
+    "rosbag2_mcap": ("rosbag2-mcap", "ros2", "log"),
+    "ros1_mcap": ("mcap-ros1", "ros2", "log.mcap"),
+}
+FORMATS = {"ros2_mcap": "MCAP (ROS 2, cdr)", "foxglove_mcap": "MCAP (Foxglove, protobuf)",
+           "bag": "ROS 1 bag (ros1)", "rosbag2_sqlite3": "rosbag2 (sqlite3, cdr)",
+           "rosbag2_mcap": "rosbag2 (mcap, cdr)", "ros1_mcap": "MCAP (ROS 1, ros1)"}
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> dict[str, Path]:
+    """The same 10-frame straight corridor (320x180, seed 4) written in every container."""
+    cfg = SynthConfig(layout="straight", seed=4, n_frames=10, speed=2.0).at_resolution(320, 180)
+    out = {}
+    for name, (container, profile, fname) in CONTAINERS.items():
+        path = tmp_path_factory.mktemp(name) / fname
+        write_synth_log(cfg, path, profile=profile, container=container, progress=False)
+        out[name] = path
+    return out
+
+
+def _read(path):
+    with open_log(path) as log:
+        frames = [(f.stamp, f.color, f.depth) for f in log.frames()]
+        return frames, log.intrinsics, log.mount, log.ground_truth, log.summary()
+
+
+def test_every_container_gives_the_same_frames(logs):
+    ref_frames, ref_k, ref_mount, ref_gt, _ = _read(logs["ros2_mcap"])
+    assert len(ref_frames) == 10
+    for name, path in logs.items():
+        frames, k, mount, gt, summary = _read(path)
+        assert summary.format == FORMATS[name]
+        assert summary.frames == 10 and summary.corrupt == 0
+        assert len(frames) == len(ref_frames), name
+        for (s, c, d), (rs, rc, rd) in zip(frames, ref_frames):
+            assert s == rs
+            np.testing.assert_array_equal(c, rc, err_msg=name)
+            np.testing.assert_array_equal(d, rd, err_msg=name)
+        assert k == ref_k, name
+        np.testing.assert_array_equal(mount.T_base_cam, ref_mount.T_base_cam, err_msg=name)
+        assert (mount.parent_frame, mount.child_frame) == (ref_mount.parent_frame, ref_mount.child_frame)
+        np.testing.assert_array_equal(gt.stamps, ref_gt.stamps, err_msg=name)
+        np.testing.assert_allclose(gt.poses, ref_gt.poses, atol=1e-12, err_msg=name)
+
+
+def test_metadata_yaml_names_the_folder(logs):
+    frames, *_ = _read(logs["rosbag2_sqlite3"] / "metadata.yaml")
+    assert len(frames) == 10
+
+
+@pytest.fixture(scope="module")
+def runs(logs, tmp_path_factory) -> dict[str, Path]:
+    from planar_vo.pipeline import run
+    config = load_config(None, {"output": {"plot": False}})
+    out = {}
+    for name, path in logs.items():
+        out[name] = tmp_path_factory.mktemp(f"run_{name}")
+        run(path, out[name], config, progress=False)
+    return out
+
+
+def test_run_gives_identical_raw_tum_in_every_container(runs):
+    ref = (runs["ros2_mcap"] / "raw.tum").read_bytes()
+    assert len(read_tum_trajectory(runs["ros2_mcap"] / "raw.tum")) == 10
+    for name, out in runs.items():
+        assert (out / "raw.tum").read_bytes() == ref, name
+        assert (out / "smoothed.tum").read_bytes() == (runs["ros2_mcap"] / "smoothed.tum").read_bytes(), name
+
+
+def test_poses_mcap_follows_the_log_family(runs):
+    from mcap.reader import make_reader
+    for name, out in runs.items():
+        with open(out / "poses.mcap", "rb") as f:
+            summary = make_reader(f).get_summary()
+        schemas = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+        if name == "foxglove_mcap":
+            assert schemas["/planar_vo/smoothed/pose"] == "foxglove.PoseInFrame"
+        else:
+            assert schemas == {"/planar_vo/raw/odom": "nav_msgs/msg/Odometry",
+                               "/planar_vo/smoothed/odom": "nav_msgs/msg/Odometry",
+                               "/planar_vo/raw/path": "nav_msgs/msg/Path",
+                               "/planar_vo/smoothed/path": "nav_msgs/msg/Path",
+                               "/tf": "tf2_msgs/msg/TFMessage"}, name
+        smoothed = read_tum_trajectory(out / "smoothed.tum")
+        back = read_poses_mcap(out / "poses.mcap")["smoothed"]
+        np.testing.assert_allclose(back.poses, smoothed.poses, atol=1e-9)
+        np.testing.assert_allclose(back.stamps, smoothed.stamps, atol=1e-9)
+
+
+def test_evo_reads_poses_mcap_of_a_ros_log(runs, tmp_path):
+    """What `evo_traj bag2 poses.mcap /planar_vo/smoothed/odom` reads equals smoothed.tum."""
+    from evo.tools import file_interface
+    from rosbags.rosbag2 import Reader
+
+    out = runs["bag"]
+    smoothed = read_tum_trajectory(out / "smoothed.tum")
+    reader = Reader(out / "poses.mcap")
+    reader.open()
+    try:
+        traj = file_interface.read_bag_trajectory(reader, "/planar_vo/smoothed/odom")
+    finally:
+        reader.close()
+    np.testing.assert_allclose(traj.timestamps, smoothed.stamps, atol=1e-6)
+    np.testing.assert_allclose(traj.poses_se3, smoothed.poses, atol=1e-6)
+    # the command itself, as a user types it
+    evo_traj = Path(sys.executable).parent / "evo_traj"
+    subprocess.run([str(evo_traj), "bag2", str(out / "poses.mcap"), "/planar_vo/smoothed/odom", "--save_as_tum"],
+                   cwd=tmp_path, check=True, capture_output=True, env={**os.environ, "MPLBACKEND": "Agg"})
+    saved = read_tum_trajectory(tmp_path / "planar_vo_smoothed_odom.tum")
+    np.testing.assert_allclose(saved.stamps, smoothed.stamps, atol=1e-6)
+    np.testing.assert_allclose(saved.poses, smoothed.poses, atol=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["ros2", "foxglove"])
+def test_poses_mcap_roundtrip_in_both_formats(tmp_path, fmt):
+    rng = np.random.default_rng(7)
+    n = 40
+    stamps = 1.7e9 + np.arange(n) / 10
+    yaw = np.cumsum(rng.normal(0, 0.05, n))
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw)
+    poses[:, :3, 3] = np.cumsum(rng.normal(0, 0.1, (n, 3)), axis=0)
+    trajs = {"raw": Trajectory(stamps, poses, frame_id="odom", child_frame_id="camera_optical_frame")}
+    write_poses_mcap(tmp_path / "poses.mcap", trajs, transforms=[(stamps[0], "odom", "base_link", poses[0])],
+                     format=fmt)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["poses.mcap"]
+    back = read_poses_mcap(tmp_path / "poses.mcap")["raw"]
+    np.testing.assert_array_equal(back.stamps, stamps)
+    np.testing.assert_allclose(back.poses, poses, atol=1e-12)
+    assert (back.frame_id, back.child_frame_id) == ("odom", "camera_optical_frame")
+
+
+# ----------------------------------------------------------------------------- bad input
+
+def _cut_copy(src: Path, dst_dir: Path, keep: float = 0.6) -> Path:
+    """A copy of a log (file or folder) whose data file is cut to ``keep`` of its length."""
+    dst = dst_dir / src.name
+    if src.is_dir():
+        shutil.copytree(src, dst)
+        data = next(p for p in dst.iterdir() if p.name != "metadata.yaml")
+    else:
+        shutil.copy(src, dst)
+        data = dst
+    raw = data.read_bytes()
+    data.write_bytes(raw[:int(len(raw) * keep)])
+    return dst
+
+
+@pytest.mark.parametrize("name, code, needles", [
+    ("bag", 2, ("cannot open the ROS 1 bag", "no index")),
+    ("rosbag2_sqlite3", 2, ("cannot open the rosbag2 folder", "malformed")),
+])
+def test_truncated_container(logs, tmp_path, run_cli, name, code, needles):
+    cut = _cut_copy(logs[name], tmp_path)
+    got, out, err = run_cli("info", cut)
+    assert got == code, err
+    one_line_error(err, *needles)
+    if code == 3:
+        assert "truncated:" in out
+
+
+@pytest.mark.parametrize("container, name", [("rosbag2-mcap", "bag"), ("mcap-ros1", "bag.mcap")])
+def test_truncated_mcap_keeps_its_readable_chunks(tmp_path, run_cli, container, name):
+    """A cut MCAP (a rosbag2 folder's or a ROS 1-profile one) yields the chunks before the cut
+    (rosbags needs the MCAP summary; the MCAP reader reads what it can), then exit 3."""
+    from iohelpers import INTR, make_frames
+    from planar_vo.io.rosbags_writer import open_log_writer
+    frames = make_frames(100, seed=40)  # raw 64x48: 1.5 MB, two of rosbags' 1 MiB chunks
+    with open_log_writer(tmp_path / name, INTR, container=container, color_encoding="bgr8",
+                         depth_encoding="16UC1", chunk_size=64 * 1024, chunk_compression="none") as w:
+        for f in frames:
+            w.write(f)
+    (tmp_path / "cut").mkdir()
+    cut = _cut_copy(tmp_path / name, tmp_path / "cut", keep=0.8)
+    code, out, err = run_cli("info", cut)
+    assert code == 3, err
+    one_line_error(err, "cut short", "last readable message at")
+    n = int(out.split("frames:")[1].split()[0])
+    assert 0 < n < 100
+    with open_log(cut) as log:
+        got = []
+        with pytest.raises(Exception, match="cut short"):
+            for f in log.frames():
+                got.append(f)
+    assert len(got) == n
+    for f, ref in zip(got, frames):
+        np.testing.assert_array_equal(f.color, ref.color)
+
+
+@pytest.mark.parametrize("name", list(CONTAINERS))
+def test_missing_topic(logs, run_cli, name):
+    code, _, err = run_cli("info", logs[name], "--color-topic", "/camera/nope")
+    assert code == 2
+    one_line_error(err, "--color-topic /camera/nope is not in the log", "/kinect2/qhd/image_color_rect/compressed")
+
+
+@pytest.mark.parametrize("name", ["rosbag2_sqlite3", "rosbag2_mcap"])
+def test_rosbag2_folder_without_metadata(logs, tmp_path, run_cli, name):
+    folder = tmp_path / "bag"
+    shutil.copytree(logs[name], folder)
+    (folder / "metadata.yaml").unlink()
+    code, _, err = run_cli("info", folder)
+    assert code == 2
+    one_line_error(err, "rosbag2 folder", "no metadata.yaml")
+
+
+def test_convert_a_bag_to_mcap(logs, tmp_path, run_cli):
+    code, out, err = run_cli("convert", logs["bag"], tmp_path / "out.mcap")
+    assert code == 0, err
+    ref, *_ = _read(logs["bag"])
+    back, *_ = _read(tmp_path / "out.mcap")
+    assert len(back) == len(ref) == 10
+    for (s, c, d), (rs, rc, rd) in zip(back, ref):
+        assert s == rs
+        np.testing.assert_array_equal(c, rc)
+        np.testing.assert_array_equal(d, rd)
+
+
+def test_synth_container_names_checked(tmp_path, capsys):
+    from planar_vo import cli
+    for argv, needle in ((["synth", str(tmp_path / "a.mcap"), "--container", "bag"], "must end in .bag"),
+                         (["synth", str(tmp_path / "a.bag"), "--container", "rosbag2-mcap"], "writes a folder"),
+                         (["synth", str(tmp_path / "a"), "--container", "zip"], "--container 'zip'"),
+                         (["synth", str(tmp_path / "a.bag"), "--container", "bag", "--profile", "foxglove"],
+                          "--container mcap only")):
+        assert cli.main(argv) == 2
+        one_line_error(capsys.readouterr().err, needle)
+    assert list(tmp_path.iterdir()) == []
