@@ -3,9 +3,10 @@
 Prints (1) milliseconds per frame to read 960x540 logs through ``open_log().frames()``
 for every colour and depth encoding and both profiles, split into the pure pixel
 decode and the whole read (chunk I/O, message decoding, pairing, pixel decode);
-(2) for a generated raw ``bgr8`` + ``16UC1`` log of at least ``--size-gb``, its size,
-frames, frames/s and the peak RSS of a fresh reading process before and after it
-streams every frame (target: under 500 MB).
+(2) for a generated raw ``bgr8`` + ``16UC1`` log of at least ``--size-gb`` in each of
+``--containers`` (MCAP, ROS 1 bag, rosbag2 sqlite3 and mcap folders; one at a time, each
+deleted after its check), its size, frames, frames/s and the peak RSS of a fresh reading
+process before and after it streams every frame (target: under 500 MB).
 """
 from __future__ import annotations
 
@@ -21,6 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frames per decode-timing log (default 30)")
     parser.add_argument("--keep", action="store_true", help="keep the generated files (prints where)")
     parser.add_argument("--skip-memory", action="store_true", help="only the per-encoding timings")
+    parser.add_argument("--containers", default="mcap,bag,rosbag2-sqlite3,rosbag2-mcap",
+                        help="containers streamed for the memory check, comma-separated, one at a time "
+                             "(mcap, bag, rosbag2-sqlite3, rosbag2-mcap, mcap-ros1; default: the first four)")
+    parser.add_argument("--skip-timings", action="store_true", help="only the memory check")
 
 
 def _base_frames(seed: int = 0, n: int = 4):
@@ -98,33 +103,46 @@ print(json.dumps([n, dt, before, after]))
 """
 
 
-def _memory_run(tmp, size_gb: float) -> bool:
-    import json
-    import subprocess
-    import sys
+def _generate(tmp, container: str, size_gb: float):
+    """A raw bgr8 + 16UC1 log of at least ``size_gb`` in ``container``: ``(path, frames, seconds)``."""
     import time
 
     import numpy as np
 
-    from planar_vo.io import CameraIntrinsics, RGBDFrame, RGBDLogWriter
+    from planar_vo.io import CameraIntrinsics, RGBDFrame
+    from planar_vo.io.rosbags_writer import open_log_writer
 
     intr = CameraIntrinsics(W, H, 540.7, 540.7, 479.5, 269.5)
     per_frame = W * H * 3 + W * H * 2
     n = int(np.ceil(size_gb * 1e9 / per_frame))
     base = _base_frames(seed=1)
-    path = tmp / "big.mcap"
+    path = tmp / {"mcap": "big.mcap", "bag": "big.bag", "mcap-ros1": "big_ros1.mcap"}.get(container, "big_rosbag2")
     t0 = time.perf_counter()
-    with RGBDLogWriter(path, intr, color_encoding="bgr8", depth_encoding="16UC1",
-                       chunk_compression="none") as w:
+    with open_log_writer(path, intr, container=container, color_encoding="bgr8", depth_encoding="16UC1",
+                         chunk_compression="none") as w:
         for i in range(n):
             c, d = base[i % len(base)]
             shift = (i * 7) % W  # cheap variety between frames
             w.write(RGBDFrame(i, 1.7e9 + i / 30, np.roll(c, shift, axis=1), np.roll(d, shift, axis=1)))
-    gen_s = time.perf_counter() - t0
-    size = path.stat().st_size
-    print(f"\nstreaming memory: generated {path} ({size / 1e9:.2f} GB, {n} raw bgr8 + 16UC1 frames) in {gen_s:.1f} s")
+    return path, n, time.perf_counter() - t0
+
+
+def _memory_run(tmp, size_gb: float, container: str = "mcap") -> bool:
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    path, n, gen_s = _generate(tmp, container, size_gb)
+    size = path.stat().st_size if path.is_file() else sum(p.stat().st_size for p in path.iterdir())
+    print(f"\nstreaming memory, {container}: generated {path} ({size / 1e9:.2f} GB, {n} raw bgr8 + 16UC1 "
+          f"frames) in {gen_s:.1f} s")
     # A fresh process, so the peak RSS is the reader's alone (ru_maxrss is KiB on Linux).
     res = subprocess.run([sys.executable, "-c", _READER, str(path)], capture_output=True, text=True, check=False)
+    if path.is_dir():
+        shutil.rmtree(path)
+    else:
+        path.unlink()
     if res.returncode != 0:
         raise RuntimeError(f"reader process failed: {res.stderr.strip().splitlines()[-1:]}")
     frames, dt, before, after = json.loads(res.stdout.strip().splitlines()[-1])
@@ -133,6 +151,16 @@ def _memory_run(tmp, size_gb: float) -> bool:
     print(f"reader peak RSS: {before:.0f} MB after imports, {after:.0f} MB after streaming the whole log "
           f"(target < {RSS_TARGET_MB:.0f} MB): {'PASS' if ok else 'FAIL'}")
     return ok
+
+
+def _containers(text: str) -> list[str]:
+    from planar_vo.errors import InputError
+    from planar_vo.io.rosbags_writer import CONTAINERS
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    bad = [c for c in names if c not in CONTAINERS]
+    if bad or not names:
+        raise InputError(f"--containers {text!r}: use some of {', '.join(CONTAINERS)}")
+    return names
 
 
 def main(args: argparse.Namespace) -> int:
@@ -150,9 +178,10 @@ def main(args: argparse.Namespace) -> int:
                          "lower --size-gb or set TMPDIR")
     ok = True
     try:
-        _timing_table(tmp, args.frames_per_encoding)
+        if not args.skip_timings:
+            _timing_table(tmp, args.frames_per_encoding)
         if not args.skip_memory:
-            ok = _memory_run(tmp, args.size_gb)
+            ok = all([_memory_run(tmp, args.size_gb, c) for c in _containers(args.containers)])
     finally:
         if args.keep:
             print(f"kept {tmp}")
