@@ -14,7 +14,7 @@ from planar_vo.io.types import CameraIntrinsics
 
 def add_log_arguments(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
     if positional:
-        parser.add_argument("log", help="MCAP log or TUM RGB-D folder")
+        parser.add_argument("log", help="MCAP log, ROS 1 .bag, rosbag2 folder (or its metadata.yaml) or TUM RGB-D folder")
     g = parser.add_argument_group("input selection")
     g.add_argument("--color-topic", help="colour image topic (default: found automatically)")
     g.add_argument("--depth-topic", help="depth image topic (default: found automatically)")

@@ -122,8 +122,8 @@ class McapRGBDLog(RGBDLog):
         if head.startswith(_ROSBAG1_MAGIC):
             raise InputError(f"{self.path}: a ROS 1 bag, not MCAP; open it with open_log()")
         if head != MCAP_MAGIC:
-            raise InputError(f"{self.path}: not an MCAP file (no MCAP magic bytes); give an .mcap log "
-                             "or a TUM RGB-D folder")
+            raise InputError(f"{self.path}: not an MCAP file (no MCAP magic bytes); give an .mcap log, "
+                             "a ROS 1 .bag, a rosbag2 folder or a TUM RGB-D folder")
         self._factories = (Ros2Decoders(), ProtobufDecoders(), Ros1DecoderFactory())
         self._decoders: dict[int, object] = {}
         self._file.seek(0)

@@ -100,7 +100,7 @@ def blas_threads(n: int = 1):
 
 
 def open_input(log_path: str | Path, config: RunConfig):
-    """Open an MCAP log or TUM folder with the topic/intrinsics overrides of ``config``."""
+    """Open a log (MCAP, bag, rosbag2 or TUM folder) with the topic/intrinsics overrides of ``config``."""
     from planar_vo.io import open_log
     from planar_vo.io.types import CameraIntrinsics
 
