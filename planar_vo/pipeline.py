@@ -206,8 +206,11 @@ def _prepare_outputs(config: RunConfig) -> float:
             import foxglove_schemas_protobuf.PoseInFrame_pb2  # noqa: F401
             import foxglove_schemas_protobuf.PosesInFrame_pb2  # noqa: F401
             import mcap_protobuf.writer  # noqa: F401
+            import rosbags.rosbag2  # noqa: F401
 
             import planar_vo.io.trajectory  # noqa: F401
+            from planar_vo.io import rosmsg
+            rosmsg.typestore(rosmsg.CDR)  # ROS 2 poses.mcap: the type store is built once
         if config.output.plot:
             import matplotlib
 
