@@ -51,22 +51,27 @@ def _lookup(value: dict, name: str):
     return lower.get(name.lower())
 
 
+# rosbags.interfaces.Nodetype values (an IntEnum), spelt out: _field runs per field of every message.
+_BASE, _NAME, _ARRAY = 1, 2, 3
+
+
 def _field(store, desc, value):
-    from rosbags.interfaces import Nodetype
     kind, detail = desc
-    if kind == Nodetype.NAME:
+    if kind == _NAME:
         return build(store, detail, value or {})
-    if kind == Nodetype.BASE:
+    if kind == _BASE:
         base = detail[0]
         if base == "string":
             return value or ""
         return _NUMPY[base](0).item() if value is None else value
     (sub_kind, sub_detail), length = detail
-    if sub_kind == Nodetype.BASE and sub_detail[0] in _NUMPY:
+    if sub_kind == _BASE and sub_detail[0] in _NUMPY:
         arr = np.frombuffer(value, np.uint8) if isinstance(value, (bytes, bytearray, memoryview)) \
             else np.asarray(value if value is not None else [], dtype=_NUMPY[sub_detail[0]])
-        if kind == Nodetype.ARRAY and arr.size != length:
+        if kind == _ARRAY and value is None:
             arr = np.zeros(length, dtype=arr.dtype)
+        if kind == _ARRAY and arr.size != length:
+            raise ValueError(f"a fixed array of {length} {sub_detail[0]} got {arr.size} values")
         return arr
     items = list(value or [])
     return [_field(store, (sub_kind, sub_detail), v) for v in items]

@@ -254,3 +254,18 @@ def test_synth_container_names_checked(tmp_path, capsys):
         assert cli.main(argv) == 2
         one_line_error(capsys.readouterr().err, needle)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ros2_dicts_serialise_as_ros1_and_back():
+    """A ROS 2-style dict becomes a ROS 1 message (K from k, seq zero) and parses back the same."""
+    from iohelpers import INTR
+    from planar_vo.io import messages as m, rosmsg
+    d = m.ros2_camera_info(1_700_000_000.25, "cam", INTR)
+    raw = rosmsg.serialize(rosmsg.ROS1, "sensor_msgs/msg/CameraInfo", d)
+    msg = rosmsg.typestore(rosmsg.ROS1).deserialize_ros1(raw, "sensor_msgs/msg/CameraInfo")
+    assert msg.header.seq == 0 and msg.header.frame_id == "cam"
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_700_000_000, 250_000_000)
+    np.testing.assert_array_equal(msg.K, [50.0, 0, 31.5, 0, 51.0, 23.5, 0, 0, 1])
+    assert m.parse_camera_info(msg, rectified=False) == INTR
+    with pytest.raises(ValueError, match="fixed array of 9 float64 got 4"):
+        rosmsg.serialize(rosmsg.ROS1, "sensor_msgs/msg/CameraInfo", {**d, "k": [1.0, 2.0, 3.0, 4.0]})
