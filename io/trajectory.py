@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 from collections import defaultdict
 from pathlib import Path
@@ -98,8 +97,8 @@ def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=No
       ``foxglove.PosesInFrame`` paths on ``/planar_vo/N/path``, ``foxglove.FrameTransforms``.
     * ``ros2``: ``nav_msgs/msg/Odometry`` per pose on ``/planar_vo/N/odom`` (``child_frame_id``
       is the trajectory's), ``nav_msgs/msg/Path`` on ``/planar_vo/N/path``,
-      ``tf2_msgs/msg/TFMessage``; written by rosbags' rosbag2 MCAP storage, so that
-      ``evo_traj bag2 poses.mcap /planar_vo/smoothed/odom`` reads it as it is.
+      ``tf2_msgs/msg/TFMessage``, as ``ros2 bag record -s mcap`` writes them, so that
+      ``evo_traj bag2 poses.mcap /planar_vo/smoothed/odom`` (rosbags) reads it as it is.
 
     The path grows: every ``path_period`` seconds of the trajectory a message with the
     path so far, thinned evenly to at most ``path_max_poses`` poses (so the file grows
@@ -113,7 +112,7 @@ def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=No
         _check_traj(traj, f"write_poses_mcap[{name}]")
     events = _pose_events(trajectories, transforms, path_period, path_max_poses, format == "ros2")
     if format == "ros2":
-        _write_poses_rosbag2(Path(path), events)
+        _write_poses_ros2(Path(path), events)
         return
     from mcap_protobuf.writer import Writer
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
@@ -154,30 +153,28 @@ def _pose_events(trajectories, transforms, path_period: float, path_max_poses: i
     return events
 
 
-def _write_poses_rosbag2(path: Path, events: list) -> None:
-    """ROS 2 messages in a rosbag2 MCAP file at ``path``, atomically (rosbags' metadata.yaml
-    is dropped: rosbags, and so evo, open the bare file)."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+def _write_poses_ros2(path: Path, events: list) -> None:
+    """ROS 2 messages (CDR, ``ros2msg`` schemas) in an MCAP of the ``ros2`` profile, the way
+    ``ros2 bag record -s mcap`` writes one, atomically; zstd chunks as for the Foxglove format."""
+    from mcap.writer import CompressionType, Writer
 
     from planar_vo.io import rosmsg
-    from planar_vo.io.atomic import AtomicTree
-    from planar_vo.io.rosbags_writer import ROSBAG2_VERSION
-    if path.suffix != ".mcap":
-        raise ValueError(f"{path}: a ROS 2 poses file must be named *.mcap")
-    # rosbags names the storage file after the bag folder: a folder "poses" holds poses.mcap.
-    tree = AtomicTree(path.with_suffix(""))
-    try:
-        w = Writer(tree.tmp_path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
-        w.open()
-        conns = {}
+    store = rosmsg.typestore(rosmsg.CDR)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="ros2", library="planar-vo")
+        channels: dict[str, int] = {}
+        schemas: dict[str, int] = {}
         for s, _, topic, typename, build in events:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typename, typestore=rosmsg.typestore(rosmsg.CDR))
-            w.write(conns[topic], m.stamp_to_ns(s), rosmsg.serialize(rosmsg.CDR, typename, build()))
-        w.close()
-        os.replace(tree.tmp_path / path.name, path)
-    finally:
-        tree.discard()
+            if typename not in schemas:
+                text = store.generate_msgdef(typename, ros_version=2)[0]
+                schemas[typename] = w.register_schema(typename, "ros2msg", text.encode("utf-8"))
+            if topic not in channels:
+                channels[topic] = w.register_channel(topic, "cdr", schemas[typename])
+            t = m.stamp_to_ns(s)
+            w.add_message(channels[topic], log_time=t, data=rosmsg.serialize(rosmsg.CDR, typename, build()),
+                          publish_time=t)
+        w.finish()
 
 
 def _path_cuts(stamps: np.ndarray, period: float) -> list[int]:
