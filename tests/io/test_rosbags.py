@@ -269,3 +269,18 @@ def test_ros2_dicts_serialise_as_ros1_and_back():
     assert m.parse_camera_info(msg, rectified=False) == INTR
     with pytest.raises(ValueError, match="fixed array of 9 float64 got 4"):
         rosmsg.serialize(rosmsg.ROS1, "sensor_msgs/msg/CameraInfo", {**d, "k": [1.0, 2.0, 3.0, 4.0]})
+
+
+def test_run_flag_chooses_the_poses_format(logs, tmp_path):
+    from mcap.reader import make_reader
+
+    from planar_vo import cli
+    for fmt, schema in (("foxglove", "foxglove.PoseInFrame"), ("ros2", "nav_msgs/msg/Odometry")):
+        out = tmp_path / fmt
+        src = logs["bag"] if fmt == "foxglove" else logs["foxglove_mcap"]  # against the log's family
+        assert cli.main(["run", str(src), "--out", str(out), "--poses-format", fmt, "--no-plot", "--quiet"]) in (0, 4)
+        with open(out / "poses.mcap", "rb") as f:
+            summary = make_reader(f).get_summary()
+        assert schema in {s.name for s in summary.schemas.values()}
+        back = read_poses_mcap(out / "poses.mcap")["raw"]
+        np.testing.assert_allclose(back.poses, read_tum_trajectory(out / "raw.tum").poses, atol=1e-9)
