@@ -5,6 +5,8 @@ import json
 import math
 from pathlib import Path
 
+from evo.tools import file_interface
+
 from planar_vo.errors import InputError
 from planar_vo.metrics import planarity, trajectory_errors
 
@@ -70,8 +72,6 @@ def find_ground_truth(run_dir: Path):
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     """Errors of ``raw.tum`` and ``smoothed.tum`` in ``run_dir`` against ``gt`` (a Trajectory)."""
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     run_dir = Path(run_dir)
     if not (run_dir / "smoothed.tum").exists():
         raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
@@ -81,8 +81,9 @@ def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
         raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
     result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
     for name in ("raw", "smoothed"):
-        est = read_tum_trajectory(run_dir / f"{name}.tum")
-        result[name] = trajectory_errors(est.stamps, est.poses, gt.stamps, gt.poses, max_dt=max_dt).as_dict()
+        est = file_interface.read_tum_trajectory_file(run_dir / f"{name}.tum")
+        result[name] = trajectory_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses,
+                                         max_dt=max_dt).as_dict()
     return result
 
 
@@ -94,6 +95,10 @@ def format_table(result: dict) -> str:
             v = result[name][key]
             cells.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
         lines.append(f"{label:<30}{cells[0]:>14}{cells[1]:>14}")
+    for name in ("raw", "smoothed"):
+        if result[name].get("ate_alignment") == "first_pose":
+            lines.append(f"{name}: ATE after aligning the first poses (the ground truth is a straight line, "
+                         "so the SE(3) alignment is undetermined)")
     g = result["ground_truth"]
     lines.append(f"ground truth: {g['poses']} poses, height range {g['height_range_m']:.3f} m, "
                  f"tilt range {g['tilt_range_deg']:.2f} deg")

@@ -78,11 +78,11 @@ def _errors(stamps, poses, gt) -> dict:
 
 def _align_to_gt(poses: np.ndarray, stamps: np.ndarray, gt) -> np.ndarray:
     """Peer poses re-based so that the first matched pose equals ground truth (for plots)."""
-    from planar_vo.metrics import associate
+    from planar_vo.io.trajectory import associate_stamps
 
     if gt is None:
         return poses
-    ia, ib = associate(stamps, gt.stamps)
+    ia, ib = associate_stamps(stamps, gt.stamps)
     if not len(ia):
         return poses
     A = gt.poses[ib[0]] @ np.linalg.inv(poses[ia[0]])
