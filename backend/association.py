@@ -79,10 +79,6 @@ class ManhattanAssociator:
         return float(self._x[0])
 
     @property
-    def theta_variance(self) -> float:
-        return float(self._P[0, 0])
-
-    @property
     def n_frames(self) -> int:
         return len(self._x) - 1
 

@@ -137,7 +137,7 @@ class Levelling:
         with the camera's heading along base x; given x, y and yaw are kept.
         """
         s = self.state
-        if self._given_mount is not None and s.source == "mount" and self.height_fixed:
+        if self._given_mount is not None and s.source == "mount" and self.height_fixed and self.config.height_m is None:
             return self._given_mount
         x, y, yaw = self._mount_xy_yaw
         T = np.eye(4)

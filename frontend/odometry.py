@@ -209,8 +209,9 @@ class PlanarOdometry:
         self.config = config or FrontendConfig()
         c = self.config
         self._levelling = Levelling(c.levelling, mount)
-        self._planes = PlaneDetector(intrinsics, c.planes, self._levelling.state.R_lev_cam)
-        self._features = FeatureTracker(intrinsics, c.features)
+        depth_range = (c.min_depth, c.max_depth)
+        self._planes = PlaneDetector(intrinsics, c.planes, self._levelling.state.R_lev_cam, depth_range)
+        self._features = FeatureTracker(intrinsics, c.features, depth_range)
         self._manhattan = ManhattanTracker(c.manhattan)
         o = c.odometry
         self._dpp_opt = DirPointOptions(focal_px=intrinsics.fx, max_iterations=o.ransac_iterations, seed=o.seed)

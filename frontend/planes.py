@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from planar_vo.frontend.config import PlaneConfig
+from planar_vo.frontend.config import DEFAULT_DEPTH_RANGE, PlaneConfig
 from planar_vo.frontend.features import UNDISTORT_CRITERIA
 from planar_vo.io.types import CameraIntrinsics
 
@@ -127,9 +127,10 @@ class PlaneDetector:
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, config: PlaneConfig | None = None,
-                 R_lev_cam: np.ndarray | None = None):
+                 R_lev_cam: np.ndarray | None = None, depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE):
         self.intrinsics = intrinsics
         self.config = config or PlaneConfig()
+        self.depth_range = depth_range  # (min, max) m
         self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
         self.n_total = self._xy_cam.shape[0]
         step = math.radians(self.config.hough_step_deg)
@@ -159,7 +160,7 @@ class PlaneDetector:
         xs, ys = self._x[ok], self._y[ok]
         self._xr = (xs.min(), xs.max() + 1e-9)
         self._yr = (ys.min(), ys.max() + 1e-9)
-        self._wr = (1.0 / c.max_depth, 1.0 / c.min_depth)
+        self._wr = (1.0 / self.depth_range[1], 1.0 / self.depth_range[0])
         # Pre-computed bins of the image axes (the inverse-depth bin changes per frame).
         nb = c.n_image_bins
         self._xbin = np.clip(((self._x - self._xr[0]) / (self._xr[1] - self._xr[0]) * nb).astype(np.int64), 0, nb - 1)
@@ -172,7 +173,7 @@ class PlaneDetector:
         if depth.ndim != 2 or depth.shape != (self.intrinsics.height, self.intrinsics.width):
             raise ValueError(f"depth must be ({self.intrinsics.height}, {self.intrinsics.width}), got {depth.shape}")
         z = depth[self._o::c.stride, self._o::c.stride].ravel()
-        valid = (z >= c.min_depth) & (z <= c.max_depth) & self._ray_ok
+        valid = (z >= self.depth_range[0]) & (z <= self.depth_range[1]) & self._ray_ok
         idx = np.flatnonzero(valid)
         w = 1.0 / (z[idx].astype(np.float64) * self._zscale[idx])
         return idx, w

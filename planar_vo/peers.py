@@ -92,13 +92,6 @@ def _valid_step(T: np.ndarray) -> str:
     return ""
 
 
-def _invert(T: np.ndarray) -> np.ndarray:
-    Ti = np.eye(4)
-    Ti[:3, :3] = T[:3, :3].T
-    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return Ti
-
-
 class PeerMethod(ABC):
     """A peer odometry: ``prepare`` a frame once, ``estimate`` a step between prepared frames."""
 

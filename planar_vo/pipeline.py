@@ -31,7 +31,7 @@ import numpy as np
 
 from planar_vo.config import RunConfig, dump_config
 from planar_vo.errors import InputError, PartialResult
-from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, mount_rotation, se2_to_matrix
+from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
 
@@ -114,30 +114,6 @@ def open_input(log_path: str | Path, config: RunConfig):
             log.close()
             raise
     return log
-
-
-def resolve_mount(log_mount, config: RunConfig):
-    """The mount to use: config tilt (with the log's or configured height) > log's /tf_static > None."""
-    from planar_vo.io.types import Mount
-
-    m = config.mount
-    if m.pitch_deg is None:
-        if log_mount is not None and m.height_m is not None:
-            T = np.array(log_mount.T_base_cam, dtype=float)
-            T[2, 3] = m.height_m
-            return Mount(T, log_mount.parent_frame, log_mount.child_frame)
-        return log_mount
-    T = np.eye(4)
-    yaw = 0.0
-    if log_mount is not None:
-        T[:3, 3] = np.asarray(log_mount.T_base_cam)[:3, 3]
-        yaw = mount_angles(np.asarray(log_mount.T_base_cam)[:3, :3])[2]
-    T[:3, :3] = mount_rotation(math.radians(m.pitch_deg), math.radians(m.roll_deg), yaw)
-    if m.height_m is not None:
-        T[2, 3] = m.height_m
-    elif log_mount is None:
-        T[2, 3] = float("nan")  # unknown: the front-end measures it from the floor
-    return Mount(T)
 
 
 def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
@@ -245,8 +221,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     side.shutdown(wait=False)
     with open_input(log_path, config) as log:
         intr = log.intrinsics
-        mount = resolve_mount(log.mount, config)
-        odo = PlanarOdometry(intr, mount, config.frontend)
+        odo = PlanarOdometry(intr, log.mount, config.frontend)
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
         c = config.input
         bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
@@ -345,7 +320,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         },
         "motion": motion_report(statuses),
         "mount": _mount_report(odo.mount),
-        "planarity": _planarity_report(frame_infos, levelled=_is_levelled(mount, frame_infos)),
+        "planarity": _planarity_report(frame_infos, levelled=_is_levelled(odo.levelling, frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
@@ -507,9 +482,10 @@ def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
     return rep
 
 
-def _is_levelled(mount, frame_infos) -> bool:
-    """True when gravity is known: a mount tilt was given, or the floor was seen."""
-    if mount is not None and np.all(np.isfinite(np.asarray(mount.T_base_cam)[:3, :3])):
+def _is_levelled(levelling, frame_infos) -> bool:
+    """True when gravity is known: a mount tilt was given (configuration or the log's
+    /tf_static), or the floor was seen."""
+    if levelling.source in ("config", "mount"):
         return True
     return any(f.get("floor_normal_cam") is not None for f in frame_infos)
 
