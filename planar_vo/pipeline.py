@@ -17,21 +17,22 @@ still written and the returned report says ``partial``.
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import json
 import math
-import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from planar_vo.config import RunConfig, dump_config
 from planar_vo.errors import InputError, PartialResult
 from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
+from planar_vo.io.atomic import write_text_atomic
+from planar_vo.io.cliargs import open_log_with_overrides
+from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
 
@@ -47,73 +48,13 @@ class RunResult:
 
 
 
-#: ``(set, get)`` thread-count entry points of the OpenBLAS builds found in the wild: the
-#: plain library (OpenCV's wheels) and the symbol-prefixed one of numpy/scipy wheels.
-_OPENBLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
-                     ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
-                     ("openblas_set_num_threads64_", "openblas_get_num_threads64_"))
-
-
-def _loaded_openblas() -> list[tuple]:
-    """``(set, get)`` ctypes functions of every OpenBLAS loaded in this process (Linux)."""
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.rsplit("/", 1)[-1].lower()})
-    except OSError:  # not Linux: leave the libraries as they are
-        return []
-    found = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)  # already mapped: this only takes a handle
-        except OSError:
-            continue
-        for set_name, get_name in _OPENBLAS_SYMBOLS:
-            if hasattr(lib, set_name) and hasattr(lib, get_name):
-                setter, getter = getattr(lib, set_name), getattr(lib, get_name)
-                setter.argtypes, setter.restype, getter.restype = [ctypes.c_int], None, ctypes.c_int
-                found.append((setter, getter))
-                break
-    return found
-
-
-@contextlib.contextmanager
-def blas_threads(n: int = 1):
-    """Run the body with at most ``n`` OpenBLAS threads, restoring the previous counts.
-
-    The front-end's BLAS calls are all small (dot products over ~10^4 samples, 3x3
-    solves): threads cannot pay for their start-up there, and idle OpenBLAS workers
-    spin, competing with the decoding thread for the cores. On a loaded 2-core machine
-    the default (one BLAS thread per core) made the plane detector ~10x slower.
-    """
-    if "numpy" not in sys.modules:
-        import numpy  # noqa: F401 - load its BLAS so that it can be limited
-    libs = _loaded_openblas()
-    before = [get() for _, get in libs]
-    for set_, _ in libs:
-        set_(n)
-    try:
-        yield
-    finally:
-        for (set_, _), k in zip(libs, before):
-            set_(k)
-
-
 def open_input(log_path: str | Path, config: RunConfig):
     """Open an MCAP log or TUM folder with the topic/intrinsics overrides of ``config``."""
-    from planar_vo.io import open_log
-    from planar_vo.io.types import CameraIntrinsics
-
     c = config.input
-    log = open_log(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
-                   info_topic=c.info_topic, sync_tolerance=c.sync_tolerance_s)
-    if c.fx is not None:
-        try:
-            w, h = log.image_size  # the override is for the images as they are
-            log.set_intrinsics(CameraIntrinsics(w, h, c.fx, c.fy, c.cx, c.cy))
-        except BaseException:
-            log.close()
-            raise
-    return log
+    intrinsics = (c.fx, c.fy, c.cx, c.cy) if c.fx is not None else None
+    return open_log_with_overrides(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
+                                   info_topic=c.info_topic, sync_tolerance=c.sync_tolerance_s,
+                                   intrinsics=intrinsics)
 
 
 def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
@@ -131,16 +72,22 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
     next frames and tracks their corners (:meth:`PlanarOdometry.track`); a third loads
     the output stage's modules meanwhile. The log is read once: the summary in the report
     comes from the same pass (``summary()`` after a complete ``frames()`` pass). The
-    kernels underneath (OpenCV, OpenBLAS) get one thread each for the run: the parallelism
+    kernels underneath (OpenCV, BLAS) get one thread each for the run: the parallelism
     is the pipeline's, and on 2 cores more threads only compete with it (the previous
     settings are restored afterwards). Results do not depend on any of this.
+
+    BLAS: the front-end's calls are all small (dot products over ~10^4 samples, 3x3
+    solves): threads cannot pay for their start-up there, and idle OpenBLAS workers spin,
+    competing with the decoding thread for the cores (on a loaded 2-core machine the
+    default made the plane detector ~10x slower). threadpoolctl limits every BLAS loaded
+    (numpy's and OpenCV's OpenBLAS).
     """
     import cv2
 
     cv_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        with blas_threads(1):
+        with threadpool_limits(limits=1, user_api="blas"):
             return _run(log_path, out_dir, config or RunConfig(), progress=progress, gt_path=gt_path)
     finally:
         cv2.setNumThreads(cv_threads)
@@ -253,7 +200,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                     cpu["backend"] += time.thread_time() - c1
                     stamps.append(frame.stamp)
                     statuses[result.step.status if result.step is not None else "first"] += 1
-                    frame_infos.append(_frame_summary(result))
+                    frame_infos.append(frame_summary(result))
                     if result.step is not None:
                         steps.append(_step_row(result))
                     bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
@@ -320,7 +267,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         },
         "motion": motion_report(statuses),
         "mount": _mount_report(odo.mount),
-        "planarity": _planarity_report(frame_infos, levelled=_is_levelled(odo.levelling, frame_infos)),
+        "planarity": planarity_report(frame_infos, levelled=is_levelled(odo.levelling, frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
@@ -331,7 +278,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         "fps_excluding_writing": round(n / max(wall - timings["write"], 1e-9), 2),
         "solver": config.solver,
     }
-    _atomic_text(out / "report.json", json.dumps(report, indent=2) + "\n")
+    write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
     files["report"] = str(out / "report.json")
     return RunResult(out, report, partial, stop_reason, files)
 
@@ -379,115 +326,8 @@ def _write_steps(path: Path, rows: list[list]) -> str:
     lines = [STEPS_HEADER]
     for r in rows:
         lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]}")
-    _atomic_text(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return str(path)
-
-
-def _frame_summary(result) -> dict:
-    info = result.info or {}
-    lev = info.get("levelling") or {}
-    oop = info.get("out_of_plane")
-    return {
-        "floor_normal_cam": lev.get("floor_normal_cam"),
-        "camera_height_m": lev.get("camera_height_m"),
-        "motion_6dof": (oop["R"], oop["t"]) if oop else None,
-    }
-
-
-#: Beyond these the motion is not planar: camera height (m) and tilt (deg) ranges, p5-p95.
-PLANAR_HEIGHT_RANGE_M = 0.05
-PLANAR_TILT_RANGE_DEG = 3.0
-
-
-def _spread(values) -> float:
-    v = np.asarray(values, dtype=float)
-    return float(np.percentile(v, 95) - np.percentile(v, 5)) if len(v) else float("nan")
-
-
-MOTION_WINDOW = 100
-
-
-def _chain(steps) -> tuple[np.ndarray, np.ndarray]:
-    """Camera positions (n+1, 3) and y axes (n+1, 3) in the first levelled frame from steps
-    ``(R, t)`` with ``X2 = R X1 + t`` (None: no fit, taken as no motion)."""
-    T = np.eye(4)
-    pos, yax = [T[:3, 3].copy()], [T[:3, 1].copy()]
-    for m in steps:
-        if m is not None:
-            T21 = np.eye(4)
-            T21[:3, :3], T21[:3, 3] = np.asarray(m[0]), np.asarray(m[1])
-            T = T @ np.linalg.inv(T21)
-        pos.append(T[:3, 3].copy())
-        yax.append(T[:3, 1].copy())
-    return np.array(pos), np.array(yax)
-
-
-def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
-    """Is the motion planar? Two independent pieces of evidence, both from the data.
-
-    * floor: on a planar robot the floor normal in the camera frame and the camera height
-      stay fixed (handheld cameras change both, or show no floor at all);
-    * motion (decides when the floor was not seen): the per-step 6-DoF fits
-      (:mod:`planar_vo.frontend.planarity`) chained over windows of ``MOTION_WINDOW`` steps in
-      the levelled frame must keep their height and vertical axis. Without a mount or a floor
-      the estimator assumes a level camera, and so does this test.
-    """
-    n = len(frame_infos)
-    rep: dict = {"frames": n}
-    verdicts = []
-    normals = [np.asarray(f["floor_normal_cam"], float) for f in frame_infos if f.get("floor_normal_cam") is not None]
-    heights = [float(f["camera_height_m"]) for f in frame_infos if f.get("camera_height_m") is not None]
-    rep["floor_seen_frames"] = len(normals)
-    if len(normals) >= max(3, 0.2 * n):
-        N = np.stack(normals)
-        mean = N.mean(0) / np.linalg.norm(N.mean(0))
-        tilt = _spread(np.degrees(np.arccos(np.clip(N @ mean, -1, 1))))
-        h = _spread(heights)
-        rep["floor"] = {"tilt_range_deg": round(tilt, 3), "height_range_m": round(h, 4)}
-        verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and h < PLANAR_HEIGHT_RANGE_M)
-
-    # Chained 6-DoF steps random-walk (a few cm and degrees over hundreds of frames), so
-    # they are judged over windows of at most MOTION_WINDOW steps, and only when the floor,
-    # far more precise, was not seen.
-    steps = [f.get("motion_6dof") for f in frame_infos[1:]]
-    fitted = sum(m is not None for m in steps)
-    if fitted >= max(3, 0.5 * len(steps)):
-        heights, tilts = [], []
-        w = MOTION_WINDOW
-        for a in range(0, max(1, len(steps) - w // 2), w // 2):
-            P, Y = _chain(steps[a:a + w])
-            heights.append(_spread(P[:, 1]))
-            tilts.append(_spread(np.degrees(np.arccos(np.clip(Y[:, 1], -1, 1)))))
-        height, tilt = max(heights), max(tilts)
-        rep["motion"] = {"steps_fitted": fitted, "window_steps": w, "height_range_m": round(height, 4),
-                         "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed"}
-        if not verdicts:
-            verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M)
-
-    if not verdicts:
-        rep["verdict"] = "unverified"
-        rep["message"] = (f"the floor was seen in {len(normals)} of {n} frames and the motion could not be "
-                          "fitted: planar motion is unverified and the planar model may not hold")
-    elif all(verdicts):
-        rep["verdict"] = "planar"
-        rep["message"] = "camera height and tilt stay constant: consistent with planar motion"
-    else:
-        worst = rep.get("floor") or rep.get("motion")
-        rep["verdict"] = "not_planar"
-        rep["message"] = (f"the camera's height varies by {worst['height_range_m']:.2f} m and its tilt by "
-                          f"{worst['tilt_range_deg']:.1f} deg: the motion is NOT planar (handheld?), so the "
-                          "planar estimates are approximations"
-                          + ("" if levelled else "; no floor and no mount: the camera was assumed level, "
-                             "give --pitch-deg/--roll-deg if it is a tilted robot camera"))
-    return rep
-
-
-def _is_levelled(levelling, frame_infos) -> bool:
-    """True when gravity is known: a mount tilt was given (configuration or the log's
-    /tf_static), or the floor was seen."""
-    if levelling.source in ("config", "mount"):
-        return True
-    return any(f.get("floor_normal_cam") is not None for f in frame_infos)
 
 
 def _mount_report(mount) -> dict:
@@ -521,12 +361,6 @@ def _jsonable(obj):
     return str(obj)
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt) -> dict:
     from planar_vo.io.trajectory import write_poses_mcap, write_tum_trajectory
 
@@ -536,7 +370,7 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
     write_tum_trajectory(out / "raw.tum", raw_traj)
     write_tum_trajectory(out / "smoothed.tum", smooth_traj)
     files["raw"], files["smoothed"] = str(out / "raw.tum"), str(out / "smoothed.tum")
-    _atomic_text(out / "config.yaml", dump_config(config))
+    write_text_atomic(out / "config.yaml", dump_config(config))
     files["config"] = str(out / "config.yaml")
     if config.output.poses_mcap:
         transforms = [(s, "odom", "base_link", se2_to_matrix(p)) for s, p in zip(stamps, smoothed)]
