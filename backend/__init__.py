@@ -12,8 +12,6 @@ _EXPORTS = {
     "PlanarPoseGraph": "planar_vo.backend.graph",
     "IncrementalPlanarPoseGraph": "planar_vo.backend.graph",
     "ManhattanAssociator": "planar_vo.backend.association",
-    "simulate_manhattan_sequence": "planar_vo.backend.simulate",
-    "trajectory_errors": "planar_vo.backend.simulate",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -18,7 +18,7 @@ import numpy as np
 
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.factors import HALF_PI, TWO_PI, robust_weight
-from planar_vo.frontend.types import ManhattanObservation
+from planar_vo.core.steps import ManhattanObservation
 
 
 @dataclass

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 KernelName = Literal["huber", "cauchy", "none"]
 

@@ -38,7 +38,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import M, X
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 __all__ = ["X", "M", "robust_noise", "step_noise", "manhattan_factor", "manhattan_anchor",
            "manhattan_residual", "robust_weight", "manhattan_tie", "manhattan_value", "TWO_PI", "HALF_PI"]

@@ -12,9 +12,9 @@ _EXPORTS = {
     "estimate_planar_motion_dpp": "planar_vo.frontend.estimators",
     "PlanarOdometry": "planar_vo.frontend.odometry",
     "FrontendConfig": "planar_vo.frontend.config",
-    "ManhattanObservation": "planar_vo.frontend.types",
-    "Step": "planar_vo.frontend.types",
-    "FrameResult": "planar_vo.frontend.types",
+    "ManhattanObservation": "planar_vo.core.steps",
+    "Step": "planar_vo.core.steps",
+    "FrameResult": "planar_vo.core.steps",
 }
 
 __all__ = sorted(_EXPORTS)

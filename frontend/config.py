@@ -14,7 +14,7 @@ from typing import Literal
 #: feature tracker both take.
 DEFAULT_DEPTH_RANGE = (0.3, 8.0)
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 
 def _positive(section: str, **values: float) -> None:

@@ -45,9 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 from planar_vo.frontend.solvers import PlanarMotion, homography_2pt_batch
-from planar_vo.geometry import rot_x, rot_z, wrap_angle
+from planar_vo.core.geometry import rot_x, rot_z, wrap_angle
 
 __all__ = [
     "TwoPointOptions",

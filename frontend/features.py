@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from planar_vo.frontend.config import DEFAULT_DEPTH_RANGE, FeatureConfig
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 #: Iterations of the undistortion fixed point: OpenCV's default 5 leave ~0.01 px in the
 #: corners of strongly distorted lenses (Kinect v1 k3 = 1.16).

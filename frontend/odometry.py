@@ -33,8 +33,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from planar_vo import geometry
-from planar_vo.errors import InputError
+from planar_vo.core import geometry
+from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, estimate_planar_motion_dpp)
@@ -44,9 +44,9 @@ from planar_vo.frontend.manhattan import LocalFrame, ManhattanTracker, group_wal
 from planar_vo.frontend.planarity import out_of_plane_motion
 from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
-from planar_vo.frontend.types import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
+from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
                                       FrameResult, ManhattanObservation, Step)
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
 @dataclass

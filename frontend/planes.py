@@ -27,7 +27,7 @@ import numpy as np
 
 from planar_vo.frontend.config import DEFAULT_DEPTH_RANGE, PlaneConfig
 from planar_vo.frontend.features import UNDISTORT_CRITERIA
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 FLOOR, CEILING, HORIZONTAL, WALL = "floor", "ceiling", "horizontal", "wall"
 

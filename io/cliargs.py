@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import argparse
 
-from planar_vo.errors import InputError
-from planar_vo.io.log import INTRINSICS_FLAGS, RGBDLog, open_log
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.errors import InputError
+from planar_vo.io.log import INTRINSICS_FLAGS, RGBDLog
+from planar_vo.io.opener import open_log
+from planar_vo.core.types import CameraIntrinsics
 
 
 def add_log_arguments(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:

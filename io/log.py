@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,8 +9,9 @@ from typing import Iterator
 
 import numpy as np
 
-from planar_vo.errors import InputError
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import mount_angles
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
 #: Frames whose depth is decoded by ``summary()`` to judge depth validity.
 DEPTH_SAMPLES = 12
@@ -64,7 +64,6 @@ class LogSummary:
         return self.depth_frames_sampled > 0 and not self.depth_valid_fraction
 
     def __str__(self) -> str:
-        from planar_vo.geometry import mount_angles
         lines = [f"log:          {self.path} ({self.format})",
                  f"colour:       {self.color_topic}  [{self.color_encoding}]  {self.color_messages} msgs",
                  f"depth:        {self.depth_topic}  [{self.depth_encoding}]  {self.depth_messages} msgs",
@@ -176,29 +175,3 @@ def check_range(start: int, stop: int | None, stride: int) -> None:
 
 def depth_valid_fraction(depth: np.ndarray) -> float:
     return float(np.count_nonzero(depth)) / depth.size if depth.size else 0.0
-
-
-def open_log(path, *, color_topic: str | None = None, depth_topic: str | None = None,
-             info_topic: str | None = None, intrinsics: CameraIntrinsics | None = None,
-             sync_tolerance: float = 0.02) -> RGBDLog:
-    """Open an MCAP log or a TUM RGB-D folder for streaming.
-
-    ``intrinsics`` overrides any calibration found in the log. ``sync_tolerance``:
-    largest colour/depth stamp difference (s) accepted when pairing.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file or folder")
-    if not sync_tolerance >= 0:
-        raise InputError(f"--sync-tolerance must be >= 0 s, got {sync_tolerance}")
-    if p.is_dir():
-        if any(t is not None for t in (color_topic, depth_topic, info_topic)):
-            raise InputError(f"{p}: --color-topic/--depth-topic/--info-topic apply to MCAP logs, "
-                             "not TUM folders")
-        from planar_vo.io.tum import TumRGBDLog
-        return TumRGBDLog(p, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
-    if not os.access(p, os.R_OK):
-        raise InputError(f"{p}: file is not readable (check its permissions)")
-    from planar_vo.io.mcap_reader import McapRGBDLog
-    return McapRGBDLog(p, color_topic=color_topic, depth_topic=depth_topic, info_topic=info_topic,
-                       intrinsics=intrinsics, sync_tolerance=sync_tolerance)

@@ -8,7 +8,7 @@ header stamp (:mod:`planar_vo.io.pairing`) and only the selected frames are deco
 Damage is contained: a message that fails to decode is skipped and listed in
 ``stats['corrupt']``; an unreadable chunk is skipped when the index lets reading resume
 after it; a log cut mid-file yields every readable frame and then raises
-:class:`~planar_vo.errors.PartialResult` naming the byte offset where it stops.
+:class:`~planar_vo.core.errors.PartialResult` naming the byte offset where it stops.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from typing import Iterator
 
 import numpy as np
 
-from planar_vo.errors import InputError, PartialResult
+from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.io import messages as m
 from planar_vo.io.codecs import (DecodeError, decode_compressed_color, decode_compressed_depth,
                                  decode_raw_color, decode_raw_depth)
@@ -30,7 +30,7 @@ from planar_vo.io.log import (DEPTH_SAMPLES, INTRINSICS_FLAGS, LogSummary, RGBDL
                               check_range, depth_valid_fraction)
 from planar_vo.io.pairing import COLOR, DEPTH, Pair, StampPairer, Unpaired
 from planar_vo.io.topics import choose_topics
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _ROSBAG1_MAGIC = b"#ROSBAG"

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.geometry import matrix_from_pose7, pose7_from_matrix
+from planar_vo.core.geometry import matrix_from_pose7, pose7_from_matrix
 from planar_vo.io.codecs import EncodedImage
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 # Schema names, normalised by :func:`schema_kind`.
 IMAGE, COMPRESSED, CAMERA_INFO, TRANSFORMS, POSE, POSES = (

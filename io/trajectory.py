@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.errors import InputError
-from planar_vo.geometry import matrix_from_pose7, pose7_from_matrix
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import matrix_from_pose7, pose7_from_matrix
 from planar_vo.io import messages as m
 from planar_vo.io.atomic import atomic_path, write_text_atomic
-from planar_vo.io.types import Trajectory
+from planar_vo.core.types import Trajectory
 
 POSES_METADATA = "planar_vo.trajectories"
 _TOPIC = re.compile(r"^/planar_vo/(?P<name>.+)/(?P<kind>pose|path)$")

@@ -15,7 +15,7 @@ import yaml
 
 from planar_vo.backend.config import BackendConfig
 from planar_vo.configtools import from_dict, merge, to_dict
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 from planar_vo.frontend.config import FrontendConfig
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from evo.tools import file_interface
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError
 from planar_vo.metrics import planarity, trajectory_errors
 
 ROWS = [

@@ -30,7 +30,7 @@ from evo.core import metrics, sync
 from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
-from planar_vo.geometry import wrap_angle, yaw_of_cam
+from planar_vo.core.geometry import wrap_angle, yaw_of_cam
 
 #: RPE segment length along the ground-truth path (m) and its relative tolerance.
 RPE_DELTA_M = 1.0

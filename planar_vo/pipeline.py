@@ -28,8 +28,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from planar_vo.config import RunConfig, dump_config
-from planar_vo.errors import InputError, PartialResult
-from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
+from planar_vo.core.errors import InputError, PartialResult
+from planar_vo.core.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
 from planar_vo.io.atomic import write_text_atomic
 from planar_vo.io.cliargs import open_log_with_overrides
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
@@ -58,7 +58,7 @@ def open_input(log_path: str | Path, config: RunConfig):
 
 
 def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
-    from planar_vo.io.types import Trajectory
+    from planar_vo.core.types import Trajectory
 
     return Trajectory(np.asarray(stamps), base_poses_to_cam_matrices(poses_base, T_base_cam),
                       frame_id=frame_id, child_frame_id="camera_optical_frame")

@@ -2,7 +2,7 @@
 import pytest
 
 from planar_vo.config import RunConfig, dump_config, load_config
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 
 def test_defaults_round_trip_through_yaml(tmp_path):

@@ -18,8 +18,8 @@ from planar_vo.frontend.estimators import (
     estimate_planar_motion_dpp,
     sampson_errors,
 )
-from planar_vo.frontend.solvers import make_planar_problem
-from planar_vo.geometry import rot_x, rot_y, rot_z, wrap_angle
+from planar_vo.sim.problems import make_planar_problem
+from planar_vo.core.geometry import rot_x, rot_y, rot_z, wrap_angle
 
 F = 1000.0
 
@@ -289,7 +289,7 @@ def test_dpp_degenerate_inputs():
 
 
 def test_options_are_range_checked():
-    from planar_vo.errors import ConfigError
+    from planar_vo.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"TwoPointOptions.confidence must be in \(0, 1\)"):
         TwoPointOptions(confidence=1.0)

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.cli import main
 from planar_vo.io.trajectory import write_tum_trajectory
-from planar_vo.io.types import Trajectory
+from planar_vo.core.types import Trajectory
 
 EVO_BIN = Path(sys.executable).parent
 

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.io.trajectory import associate_stamps
 from planar_vo.metrics import path_length, planarity, trajectory_errors
 

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
-from planar_vo.errors import InputError
+from planar_vo.core import geometry as g
+from planar_vo.core.errors import InputError
 from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
 from planar_vo.backend.graph import PlanarPoseGraph
-from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame
+from planar_vo.core.steps import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame
 from synthhelpers import render as _render
 
 

@@ -171,7 +171,7 @@ def test_demo_recipe_is_a_valid_synth_config():
 
     from planar_vo.commands.demo import RECIPE_NAME
     from planar_vo.configtools import from_dict
-    from planar_vo.io.synth import SynthConfig
+    from planar_vo.sim.synth import SynthConfig
 
     text = resources.files("planar_vo.data").joinpath(RECIPE_NAME).read_text()  # as installed
     cfg = from_dict(SynthConfig, yaml.safe_load(text))
@@ -180,7 +180,7 @@ def test_demo_recipe_is_a_valid_synth_config():
 
 def test_intrinsics_flags_override_the_log(lturn_log, tmp_path):
     """--fx/--fy/--cx/--cy reach the front-end: the true values reproduce the log's own run."""
-    from planar_vo.io.synth import SynthConfig
+    from planar_vo.sim.synth import SynthConfig
 
     c = SynthConfig()
     assert main(["run", str(lturn_log), "--out", str(tmp_path / "a"), "--quiet", "--no-plot", "--stop", "20",

@@ -144,7 +144,7 @@ def test_bench_run_prints_figures_and_checks_results(lturn_log, tmp_path, capsys
 
 def test_bench_run_rejects_a_missing_log(tmp_path):
     from planar_vo.bench import run as bench
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     p = argparse.ArgumentParser()
     bench.add_arguments(p)

@@ -140,7 +140,7 @@ def main(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     tmp = Path(tempfile.mkdtemp(prefix="planar_vo_bench_io_"))
     need = args.size_gb * 1.1e9

@@ -155,7 +155,7 @@ def _conditions(quick: bool):
 
 
 def run_condition(motion, noise_px, tilt, mode, trials, seed, cond_id, methods, points, threshold_px):
-    from planar_vo.frontend.solvers import make_planar_problem
+    from planar_vo.sim.problems import make_planar_problem
 
     thr_px = threshold_px if threshold_px is not None else max(1.0, 3.0 * noise_px)
     thr = thr_px / FOCAL
@@ -189,7 +189,7 @@ def timing(runs: int, seed: int, points: int) -> dict:
     import cv2
 
     from planar_vo.frontend.estimators import TwoPointOptions, estimate_planar_motion_2pt
-    from planar_vo.frontend.solvers import make_planar_problem
+    from planar_vo.sim.problems import make_planar_problem
 
     thr = 1.0 / FOCAL
     t2, t5, e2, e5 = [], [], [], []
@@ -340,7 +340,7 @@ def write_plots(rows: list[dict], methods: list[str], outdir: str) -> list[str]:
 
 
 def main(args) -> int:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     trials = 40 if args.quick and args.trials == 1000 else args.trials
     if trials < 1:

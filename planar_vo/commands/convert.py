@@ -34,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from planar_vo.errors import InputError, PartialResult
+    from planar_vo.core.errors import InputError, PartialResult
     from planar_vo.io.cliargs import open_log_from_args
     from planar_vo.io.mcap_writer import LogTopics, RGBDLogWriter
 

@@ -1,7 +1,7 @@
 """What the front-end hands to the back-end and the pipeline.
 
 All angles in radians, distances in metres. Frames as pinned in
-:mod:`planar_vo.geometry` (``base`` is REP 103 base_link: x forward, y left, z up).
+:mod:`planar_vo.core.geometry` (``base`` is REP 103 base_link: x forward, y left, z up).
 """
 from __future__ import annotations
 
