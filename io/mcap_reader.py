@@ -21,6 +21,13 @@ from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, Header, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
 
 from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.io import messages as m
@@ -111,11 +118,6 @@ class McapRGBDLog(RGBDLog):
 
     # ------------------------------------------------------------------ opening
     def _open(self, color_topic, depth_topic, info_topic) -> None:
-        from mcap.records import Header
-        from mcap.stream_reader import StreamReader
-        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
-        from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
-
         self.size = os.fstat(self._file.fileno()).st_size
         head = self._file.read(8)
         if head.startswith(_ROSBAG1_MAGIC):
@@ -172,7 +174,6 @@ class McapRGBDLog(RGBDLog):
         self._gt_cache: tuple | None = None
 
     def _read_summary(self):
-        from mcap.reader import SeekingReader
         try:
             self._file.seek(0)
             return SeekingReader(self._file).get_summary()
@@ -198,9 +199,6 @@ class McapRGBDLog(RGBDLog):
         if not self.indexed:
             yield from self._iter_linear(ids, corrupt=corrupt, stop_out=stop)
             return
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk, Message
-        from mcap.stream_reader import breakup_chunk
 
         chunks = [c for c in self._chunk_indexes if ids & set(c.message_index_offsets)]
         heap: list = []
@@ -229,11 +227,6 @@ class McapRGBDLog(RGBDLog):
     def _iter_linear(self, ids, corrupt: list | None = None, scan: bool = False,
                      stop_out: list | None = None) -> Iterator[tuple]:
         """Records in file order; for logs without a usable index. ``scan``: learn channels."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import breakup_chunk
-
         f = self._file
         offset = len(MCAP_MAGIC)
         stop = None

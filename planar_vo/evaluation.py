@@ -8,6 +8,8 @@ from pathlib import Path
 from evo.tools import file_interface
 
 from planar_vo.core.errors import InputError
+from planar_vo.io import open_log
+from planar_vo.io.trajectory import read_tum_trajectory
 from planar_vo.metrics import planarity, trajectory_errors
 
 ROWS = [
@@ -24,9 +26,6 @@ ROWS = [
 
 def load_ground_truth(path: str | Path):
     """Ground truth from a TUM file or from an MCAP log that carries ``/ground_truth``."""
-    from planar_vo.io import open_log
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: ground-truth file not found; pass a TUM trajectory or an MCAP with /ground_truth to --gt")
@@ -42,9 +41,6 @@ def load_ground_truth(path: str | Path):
 def ground_truth_for_log(log_path: str | Path, log=None):
     """``(Trajectory, source)`` carried by a log (``/ground_truth``) or in ``LOG.gt.tum`` beside
     it, else ``(None, None)``. ``log``: the already open RGBDLog, if any."""
-    from planar_vo.io import open_log
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     log_path = Path(log_path)
     try:
         if log is None and log_path.exists():
