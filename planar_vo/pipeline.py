@@ -17,21 +17,28 @@ still written and the returned report says ``partial``.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
 from planar_vo.config import RunConfig, dump_config
 from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.core.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
+from planar_vo.core.types import Trajectory
+from planar_vo.frontend.odometry import PlanarOdometry
 from planar_vo.io.atomic import write_text_atomic
 from planar_vo.io.cliargs import open_log_with_overrides
+from planar_vo.io.trajectory import read_tum_trajectory, write_poses_mcap, write_tum_trajectory
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
@@ -46,8 +53,6 @@ class RunResult:
     files: dict = field(default_factory=dict)
 
 
-
-
 def open_input(log_path: str | Path, config: RunConfig):
     """Open an MCAP log or TUM folder with the topic/intrinsics overrides of ``config``."""
     c = config.input
@@ -58,8 +63,6 @@ def open_input(log_path: str | Path, config: RunConfig):
 
 
 def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
-    from planar_vo.core.types import Trajectory
-
     return Trajectory(np.asarray(stamps), base_poses_to_cam_matrices(poses_base, T_base_cam),
                       frame_id=frame_id, child_frame_id="camera_optical_frame")
 
@@ -82,8 +85,6 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
     default made the plane detector ~10x slower). threadpoolctl limits every BLAS loaded
     (numpy's and OpenCV's OpenBLAS).
     """
-    import cv2
-
     cv_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
@@ -128,8 +129,6 @@ def _prepare_outputs(config: RunConfig) -> float:
             import foxglove_schemas_protobuf.PoseInFrame_pb2  # noqa: F401
             import foxglove_schemas_protobuf.PosesInFrame_pb2  # noqa: F401
             import mcap_protobuf.writer  # noqa: F401
-
-            import planar_vo.io.trajectory  # noqa: F401
         if config.output.plot:
             import matplotlib
 
@@ -151,123 +150,162 @@ def _total_frames(n_log: int | None, c) -> int | None:
 
 
 def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResult:
-    from concurrent.futures import ThreadPoolExecutor
-
-    from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
-    from planar_vo.frontend.odometry import PlanarOdometry
-
+    """The paper's flow: open the log, level, per frame track -> estimate -> add to the
+    graph, solve, report, write."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
-    cpu_start = time.process_time()
-    timings = Counter()
-    cpu = Counter()  # CPU seconds per stage (thread time), comparable on a loaded machine
+    clock = _Stopwatch()
+    prepared = _prepare_outputs_in_background(config)
+    with open_input(log_path, config) as log:
+        odometry, graph = _level(log, config)
+        loop = _process_frames(log, odometry, graph, config, clock, progress)
+        stats = dict(log.stats)  # before the summary, which may read the log again
+        with clock.stage("summary"):
+            # After a pass over the whole log this reads nothing: the pass recorded what it needs.
+            log_summary = _safe_summary(log)
+        gt = log.ground_truth
+    if not loop.stamps:
+        raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
+                         + (f" ({loop.stop_reason})" if loop.stop_reason else "")
+                         + "; check the topics with 'planar-vo info'")
+    with clock.stage("optimize"):
+        raw, smoothed = _solve(graph, config)
+    if gt_path is not None:
+        gt = read_tum_trajectory(gt_path)
+    T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
+    clock.cpu["outputs_import_background"] = prepared.result()
+    with clock.stage("write"):
+        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt)
+        files["steps"] = _write_steps(out / "steps.csv", loop.steps)
+    clock.finish()
+    report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock)
+    write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
+    files["report"] = str(out / "report.json")
+    return RunResult(out, report, loop.partial, loop.stop_reason, files)
 
+
+class _Stopwatch:
+    """Wall and CPU seconds per stage of a run (CPU: thread time, comparable on a loaded machine)."""
+
+    def __init__(self):
+        self.t_start, self.cpu_start = time.perf_counter(), time.process_time()
+        self.wall: Counter = Counter()
+        self.cpu: Counter = Counter()
+        self.wall_total = 0.0
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        yield
+        self.wall[name] += time.perf_counter() - t0
+        self.cpu[name] += time.thread_time() - c0
+
+    def finish(self) -> None:
+        self.wall_total = time.perf_counter() - self.t_start
+        self.cpu["process"] = time.process_time() - self.cpu_start  # all threads, OpenCV's workers included
+
+
+def _prepare_outputs_in_background(config: RunConfig):
+    """A future of :func:`_prepare_outputs` run in a side thread (its CPU seconds)."""
     side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-outputs")
     prepared = side.submit(_prepare_outputs, config)
     side.shutdown(wait=False)
-    with open_input(log_path, config) as log:
-        intr = log.intrinsics
-        odo = PlanarOdometry(intr, log.mount, config.frontend)
-        graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
-        c = config.input
-        bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
-        stamps: list[float] = []
-        statuses = Counter()
-        frame_infos = []
-        steps: list[list] = []
-        stop_reason = None
-        partial = False
-        # The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
-        # both GIL-free for the most part, while the main thread works on earlier frames.
-        ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odo)
-        reader = Prefetcher(ahead, depth=4)
-        t_wait = time.perf_counter()
-        try:
-            with reader:
-                for frame in reader:
-                    t0, c0 = time.perf_counter(), time.thread_time()
-                    timings["read_wait"] += t0 - t_wait
-                    result = odo.process(frame)
-                    t1, c1 = time.perf_counter(), time.thread_time()
-                    timings["frontend"] += t1 - t0
-                    cpu["frontend"] += c1 - c0
-                    for k, v in result.timings.items():
-                        timings[f"frontend.{k}"] += v
-                    graph.add_frame(result)
-                    t_wait = time.perf_counter()
-                    timings["backend"] += t_wait - t1
-                    cpu["backend"] += time.thread_time() - c1
-                    stamps.append(frame.stamp)
-                    statuses[result.step.status if result.step is not None else "first"] += 1
-                    frame_infos.append(frame_summary(result))
-                    if result.step is not None:
-                        steps.append(_step_row(result))
-                    bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
-        except KeyboardInterrupt:
-            partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
-        except PartialResult as exc:
-            partial, stop_reason = True, str(exc)
-        timings["read_decode_background"] += reader.busy_s - ahead.wall_s
-        cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
-        timings["track_background"] += ahead.wall_s
-        cpu["track_background"] += ahead.cpu_s
-        bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
-        stats = dict(log.stats)
-        # After a pass over the whole log this reads nothing: the pass recorded what it needs.
-        t0, c0 = time.perf_counter(), time.thread_time()
-        log_summary = _safe_summary(log)
-        timings["summary"] += time.perf_counter() - t0
-        cpu["summary"] += time.thread_time() - c0
-        gt = log.ground_truth
+    return prepared
 
-    if not stamps:
-        raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
-                         + (f" ({stop_reason})" if stop_reason else "")
-                         + "; check the topics with 'planar-vo info'")
 
-    t0, c0 = time.perf_counter(), time.thread_time()
+def _level(log, config: RunConfig):
+    """The front-end, levelled with the log's mount (or the configured one, or the floor),
+    and the pose graph."""
+    odometry = PlanarOdometry(log.intrinsics, log.mount, config.frontend)
+    graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
+    return odometry, graph
+
+
+@dataclass
+class _FrameLoop:
+    """What the per-frame loop collected: colour stamps of the frames with a pose, step
+    statuses, the planarity evidence, ``steps.csv`` rows, and why it stopped early."""
+
+    stamps: list = field(default_factory=list)
+    statuses: Counter = field(default_factory=Counter)
+    frame_infos: list = field(default_factory=list)
+    steps: list = field(default_factory=list)
+    partial: bool = False
+    stop_reason: str | None = None
+
+    def add(self, frame, result) -> None:
+        self.stamps.append(frame.stamp)
+        self.statuses[result.step.status if result.step is not None else "first"] += 1
+        self.frame_infos.append(frame_summary(result))
+        if result.step is not None:
+            self.steps.append(_step_row(result))
+
+    def counts(self) -> dict:
+        return {k: v for k, v in self.statuses.items() if k != "first"}
+
+
+def _process_frames(log, odometry, graph, config: RunConfig, clock: _Stopwatch, progress: bool) -> _FrameLoop:
+    """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph.
+
+    The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
+    both GIL-free for the most part, while the main thread works on earlier frames.
+    """
+    c = config.input
+    loop = _FrameLoop()
+    bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
+    ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odometry)
+    reader = Prefetcher(ahead, depth=4)
+    timings, cpu = clock.wall, clock.cpu
+    t_wait = time.perf_counter()
+    try:
+        with reader:
+            for frame in reader:
+                t0, c0 = time.perf_counter(), time.thread_time()
+                timings["read_wait"] += t0 - t_wait
+                result = odometry.process(frame)
+                t1, c1 = time.perf_counter(), time.thread_time()
+                timings["frontend"] += t1 - t0
+                cpu["frontend"] += c1 - c0
+                for k, v in result.timings.items():
+                    timings[f"frontend.{k}"] += v
+                graph.add_frame(result)
+                t_wait = time.perf_counter()
+                timings["backend"] += t_wait - t1
+                cpu["backend"] += time.thread_time() - c1
+                loop.add(frame, result)
+                bar.update(len(loop.stamps), **loop.counts())
+    except KeyboardInterrupt:
+        loop.partial, loop.stop_reason = True, "interrupted by the user (Ctrl-C)"
+    except PartialResult as exc:
+        loop.partial, loop.stop_reason = True, str(exc)
+    timings["read_decode_background"] += reader.busy_s - ahead.wall_s
+    cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
+    timings["track_background"] += ahead.wall_s
+    cpu["track_background"] += ahead.cpu_s
+    bar.close(len(loop.stamps), **loop.counts())
+    return loop
+
+
+def _solve(graph, config: RunConfig):
+    """``(raw, smoothed)`` (N, 3) base_link poses: the chained steps and the graph's solution."""
     raw = graph.raw_poses()
     smoothed = graph.estimate() if config.solver == "online" else graph.optimize()
-    timings["optimize"] += time.perf_counter() - t0
-    cpu["optimize"] += time.thread_time() - c0
+    return raw, smoothed
 
-    if gt_path is not None:
-        from planar_vo.io.trajectory import read_tum_trajectory
-        gt = read_tum_trajectory(gt_path)
 
-    T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
-    cpu["outputs_import_background"] = prepared.result()
-    t0, c0 = time.perf_counter(), time.thread_time()
-    files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
-    files["steps"] = _write_steps(out / "steps.csv", steps)
-    timings["write"] += time.perf_counter() - t0
-    cpu["write"] += time.thread_time() - c0
-    wall = time.perf_counter() - t_start
-    cpu["process"] = time.process_time() - cpu_start  # all threads, OpenCV's workers included
-
-    n = len(stamps)
-    report = {
+def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, config, clock: _Stopwatch) -> dict:
+    """``report.json``: counts, verdicts, back-end statistics and time per stage."""
+    n = len(loop.stamps)
+    timings, cpu, wall = clock.wall, clock.cpu, clock.wall_total
+    return {
         "log": str(log_path),
         "input": log_summary,
-        "partial": partial,
-        "stop_reason": stop_reason,
-        "frames": {
-            "read": n + len(stats.get("corrupt", [])),
-            "paired": stats.get("paired"),
-            "unpaired_color": stats.get("unpaired_color"),
-            "unpaired_depth": stats.get("unpaired_depth"),
-            "with_pose": n,
-            "estimated_dpp": statuses.get("dpp", 0),
-            "estimated_2pt": statuses.get("2pt", 0),
-            "partial": statuses.get("partial", 0),
-            "bridged": statuses.get("bridged", 0),
-            "failed": len(stats.get("corrupt", [])),
-            "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
-        },
-        "motion": motion_report(statuses),
-        "mount": _mount_report(odo.mount),
-        "planarity": planarity_report(frame_infos, levelled=is_levelled(odo.levelling, frame_infos)),
+        "partial": loop.partial,
+        "stop_reason": loop.stop_reason,
+        "frames": _frame_counts(loop, stats),
+        "motion": motion_report(loop.statuses),
+        "mount": _mount_report(odometry.mount),
+        "planarity": planarity_report(loop.frame_infos, levelled=is_levelled(odometry.levelling, loop.frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
@@ -278,9 +316,23 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         "fps_excluding_writing": round(n / max(wall - timings["write"], 1e-9), 2),
         "solver": config.solver,
     }
-    write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
-    files["report"] = str(out / "report.json")
-    return RunResult(out, report, partial, stop_reason, files)
+
+
+def _frame_counts(loop: _FrameLoop, stats: dict) -> dict:
+    n, statuses = len(loop.stamps), loop.statuses
+    return {
+        "read": n + len(stats.get("corrupt", [])),
+        "paired": stats.get("paired"),
+        "unpaired_color": stats.get("unpaired_color"),
+        "unpaired_depth": stats.get("unpaired_depth"),
+        "with_pose": n,
+        "estimated_dpp": statuses.get("dpp", 0),
+        "estimated_2pt": statuses.get("2pt", 0),
+        "partial": statuses.get("partial", 0),
+        "bridged": statuses.get("bridged", 0),
+        "failed": len(stats.get("corrupt", [])),
+        "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
+    }
 
 
 #: Below this share of steps with a measured translation the run is not a trajectory.
@@ -362,8 +414,6 @@ def _jsonable(obj):
 
 
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt) -> dict:
-    from planar_vo.io.trajectory import write_poses_mcap, write_tum_trajectory
-
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
     files = {}

@@ -99,14 +99,22 @@ def _poselib_solver(kind: str):
 
 
 def _method_poselib(kind: str):
+    """PoseLib's minimal solver as a variant estimator: same sampling loop, scoring and
+    refinement as planar-vo's 2-point estimator, only :meth:`generate` differs."""
+    from planar_vo.frontend.estimators import (PlanarTwoPointEstimator, TwoPointOptions,
+                                               estimate_planar_motion_2pt)
+
     solver = _poselib_solver(kind)
-    size = 2 if kind == "2pt" else 3
+
+    class PoseLibEstimator(PlanarTwoPointEstimator):
+        sample_size = 2 if kind == "2pt" else 3
+
+        def generate(self, idx):
+            return solver(self.x1, self.x2, idx)
 
     def run(prob, thr, seed):
-        from planar_vo.frontend.estimators import TwoPointOptions, estimate_planar_motion_with_solver
-
-        m, _ = estimate_planar_motion_with_solver(prob.x1, prob.x2, solver, size,
-                                                  TwoPointOptions(max_error=thr, seed=seed))
+        m, _ = estimate_planar_motion_2pt(prob.x1, prob.x2, TwoPointOptions(max_error=thr, seed=seed),
+                                          estimator=PoseLibEstimator)
         return None if m is None else (m.R, m.t)
 
     return run
