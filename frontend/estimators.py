@@ -746,12 +746,35 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
         T = levelling_tilt(*info.extra["levelling_error"])
         x1, x2, P1, P2 = _untilt(x1, T), _untilt(x2, T), P1 @ T, P2 @ T
     inl = info.inliers
+    scale = _metric_scale(theta, t_dir, info, P1, P2, opt)
+    if scale is None:
+        info.status = NO_DEPTH
+        return None, info
+    t0, Q1, Q2, inv_sig, scale_inl = scale
+    w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
+    # Sampson terms stay well defined for small non-zero t (they are scale invariant)
+    sub = _Matches(x1[inl], x2[inl])
+    fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
+    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
+    info.refine_iterations += its
+    info.cost = cost
+    info.covariance = _covariance(J, cost, 3)
+    info.scale_inliers = scale_inl
+    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
+                          pure_rotation=info.status == PURE_ROTATION)
+    return motion, info
+
+
+def _metric_scale(theta: float, t_dir, info: EstimateInfo, P1, P2, opt: MetricTwoPointOptions):
+    """The metric translation ``t0`` (3,) from the depths of the epipolar inliers, with the
+    points that agree on it: ``(t0, Q1, Q2, 1 / sigma, scale inlier mask (N,))``, or None
+    when no inlier has a valid depth or none agrees."""
+    inl = info.inliers
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
     dep = inl & valid
     if not dep.any():
-        info.status = NO_DEPTH
-        return None, info
+        return None
     c, s = math.cos(theta), math.sin(theta)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     Q1, Q2 = P1[dep], P2[dep]
@@ -767,23 +790,10 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     res = np.hypot(diff[:, 0] - t0[0], diff[:, 2] - t0[2]) / sig
     keep = res * res < opt.depth_chi2
     if not keep.any():
-        info.status = NO_DEPTH
-        return None, info
+        return None
     scale_inl = np.zeros_like(inl)
     scale_inl[np.flatnonzero(dep)[keep]] = True
-    Q1, Q2, inv_sig = Q1[keep], Q2[keep], 1.0 / sig[keep]
-    w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
-    # Sampson terms stay well defined for small non-zero t (they are scale invariant)
-    sub = _Matches(x1[inl], x2[inl])
-    fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
-    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
-    info.refine_iterations += its
-    info.cost = cost
-    info.covariance = _covariance(J, cost, 3)
-    info.scale_inliers = scale_inl
-    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
-                          pure_rotation=info.status == PURE_ROTATION)
-    return motion, info
+    return t0, Q1[keep], Q2[keep], 1.0 / sig[keep], scale_inl
 
 
 # ------------------------------------------------------------------ direction-plus-point
@@ -815,8 +825,23 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     if len(idx) < max(opt.min_inliers, 1):
         info.status = TOO_FEW_POINTS
         return None, info
+    rx, rz, dx, dz, vx, vz = _dpp_candidates(P1[idx], P2[idx], yaw, opt)
+    best_ok, info.iterations = _dpp_ransac(dx, dz, vx, vz, opt)
+    if best_ok is None or best_ok.sum() < opt.min_inliers:
+        info.status = NO_MODEL
+        return None, info
+    tx, tz, inl = _dpp_refit(dx, dz, vx, vz, best_ok, opt)
+    info.num_inliers, info.cost, info.covariance = _dpp_covariance(rx, rz, dx, dz, vx, vz, inl, tx, tz, yaw_sigma)
+    mask = np.zeros(N, dtype=bool)
+    mask[idx[inl]] = True
+    info.inliers = mask
+    return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
+
+
+def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions):
+    """Per-match translation candidates ``d = P2 - R P1`` (x, z) and their variances:
+    ``(rx, rz, dx, dz, vx, vz)``, each (M,), ``(rx, rz)`` the rotated view-1 points."""
     c, s = math.cos(yaw), math.sin(yaw)
-    Q1, Q2 = P1[idx], P2[idx]
     rx = c * Q1[:, 0] + s * Q1[:, 2]
     rz = -s * Q1[:, 0] + c * Q1[:, 2]
     dx, dz = Q2[:, 0] - rx, Q2[:, 2] - rz          # per-match t candidates (eq. 2, our sign)
@@ -828,10 +853,18 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     pix = (opt.pixel_sigma / opt.focal_px) ** 2
     vx = pix * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2) + (Q1[:, 0] / Q1[:, 2]) ** 2 * vz1 + (Q2[:, 0] / Q2[:, 2]) ** 2 * vz2
     vz = vz1 + vz2 + pix * (Q1[:, 0] ** 2 + Q2[:, 0] ** 2)
-    # each hypothesis t_k = d_k is uncertain too: test the residual against var_i + var_k.
-    # Small sets: every match is a hypothesis; large ones: adaptive random batches.
+    return rx, rz, dx, dz, vx, vz
+
+
+def _dpp_ransac(dx, dz, vx, vz, opt: DirPointOptions):
+    """1-point RANSAC on the candidates: ``(inlier mask of the best hypothesis or None, drawn)``.
+
+    Each hypothesis ``t_k = d_k`` is uncertain too: the residual is tested against
+    ``var_i + var_k``. Small sets: every match is a hypothesis; large ones: adaptive
+    random batches.
+    """
     rng = np.random.default_rng(opt.seed)
-    M = len(idx)
+    M = len(dx)
     best_score, best_ok, drawn = math.inf, None, 0
     needed = 1.0
     while drawn < min(max(needed, 1.0), opt.max_iterations, M):
@@ -845,12 +878,13 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
         if score[k] < best_score:
             best_score, best_ok = float(score[k]), ok[k]
             needed = _ransac_needed(opt.confidence, best_ok.sum() / M, 1)
-    info.iterations = drawn
-    if best_ok is None or best_ok.sum() < opt.min_inliers:
-        info.status = NO_MODEL
-        return None, info
-    inl = best_ok
-    for _ in range(3):  # weighted means, re-select against them
+    return best_ok, drawn
+
+
+def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
+    """Weighted means of the inliers' candidates, inliers re-selected against them:
+    ``(tx, tz, inliers)``."""
+    for _ in range(3):
         wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
         tx = float((wx * dx[inl]).sum() / wx.sum())
         tz = float((wz * dz[inl]).sum() / wz.sum())
@@ -858,6 +892,11 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
         if new.sum() < opt.min_inliers or np.array_equal(new, inl):
             break
         inl = new
+    return tx, tz, inl
+
+
+def _dpp_covariance(rx, rz, dx, dz, vx, vz, inl, tx: float, tz: float, yaw_sigma: float):
+    """``(inliers, chi-square, covariance (3, 3) over (yaw, t_x, t_z))`` of the estimate."""
     wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
     n_in = int(inl.sum())
     # reduced chi-square per axis, never below 1: a few agreeing matches must not claim
@@ -872,10 +911,4 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     cov = yaw_sigma ** 2 * np.outer(g, g)
     cov[1, 1] += fx / wx.sum()
     cov[2, 2] += fz / wz.sum()
-    mask = np.zeros(N, dtype=bool)
-    mask[idx[inl]] = True
-    info.inliers = mask
-    info.num_inliers = n_in
-    info.cost = chi2
-    info.covariance = cov
-    return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
+    return n_in, chi2, cov

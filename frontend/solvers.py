@@ -173,31 +173,8 @@ def homography_2pt_batch(x1a, x1b, x2a, x2b):
     (0 for pure rotation); ``ok`` (K,) False for degenerate or non-finite samples. Rows
     with ``ok`` False hold zeros, never NaN.
     """
-    xa, ya = x1a[:, 0], x1a[:, 1]
-    xb, yb = x1b[:, 0], x1b[:, 1]
-    ua, va = x2a[:, 0], x2a[:, 1]
-    ub, vb = x2b[:, 0], x2b[:, 1]
-    dx = xa - xb
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ok = (np.abs(dx) > _EPS) & (np.abs(va) > _EPS) & (np.abs(vb) > _EPS)
-        ok &= np.isfinite(dx) & np.isfinite(ya) & np.isfinite(yb) & np.isfinite(ua) & np.isfinite(ub)
-        # eq. 10 divided through by y2: per point h3 x1 + h4 = w, h1 x1 + h2 = x2 w, w = Z2/Z1
-        wa, wb = ya / va, yb / vb
-        h3 = (wa - wb) / dx
-        h4 = wa - h3 * xa
-        h1 = (ua * wa - ub * wb) / dx
-        h2 = ua * wa - h1 * xa
-        # eq. 13: A cos + B sin = C  ->  yaw = phi +- acos(C / r)
-        A = h1 + h4
-        B = h2 - h3
-        C = 1.0 + h1 * h4 - h2 * h3
-        r = np.hypot(A, B)
-        ok &= np.isfinite(r) & np.isfinite(C) & (r > _EPS)
-        phi = np.arctan2(B, A)
-        # |C / r| > 1 only through noise (double root for small t/d): clamp to the closest yaw
-        delta = np.arccos(np.clip(np.where(ok, C / np.where(ok, r, 1.0), 1.0), -1.0, 1.0))
-    yaw = np.stack([phi + delta, phi - delta], axis=1)
-    yaw = np.where(ok[:, None], yaw, 0.0)
+    xa = x1a[:, 0]
+    yaw, h1, h2, h3, h4, ok = _homography_yaws(x1a, x1b, x2a, x2b)
     c, s = np.cos(yaw), np.sin(yaw)
     z = lambda v: np.where(ok, v, 0.0)[:, None]  # noqa: E731 - keep NaN out of the algebra
     # M = H - R on the x-z block = tau n^T (rank one at a root of eq. 13)
@@ -226,6 +203,36 @@ def homography_2pt_batch(x1a, x1b, x2a, x2b):
     t = np.where(ok[:, None, None], t, 0.0)
     n = np.where(ok[:, None, None], n, 0.0)
     return wrap_angle(yaw), t, n, np.where(ok[:, None], tn, 0.0), ok
+
+
+def _homography_yaws(x1a, x1b, x2a, x2b):
+    """Both yaw roots (K, 2) of eq. 13-14 (zeros where degenerate), the homography entries
+    ``h1..h4`` (K,) and ``ok`` (K,) of :func:`homography_2pt_batch`."""
+    xa, ya = x1a[:, 0], x1a[:, 1]
+    xb, yb = x1b[:, 0], x1b[:, 1]
+    ua, va = x2a[:, 0], x2a[:, 1]
+    ub, vb = x2b[:, 0], x2b[:, 1]
+    dx = xa - xb
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ok = (np.abs(dx) > _EPS) & (np.abs(va) > _EPS) & (np.abs(vb) > _EPS)
+        ok &= np.isfinite(dx) & np.isfinite(ya) & np.isfinite(yb) & np.isfinite(ua) & np.isfinite(ub)
+        # eq. 10 divided through by y2: per point h3 x1 + h4 = w, h1 x1 + h2 = x2 w, w = Z2/Z1
+        wa, wb = ya / va, yb / vb
+        h3 = (wa - wb) / dx
+        h4 = wa - h3 * xa
+        h1 = (ua * wa - ub * wb) / dx
+        h2 = ua * wa - h1 * xa
+        # eq. 13: A cos + B sin = C  ->  yaw = phi +- acos(C / r)
+        A = h1 + h4
+        B = h2 - h3
+        C = 1.0 + h1 * h4 - h2 * h3
+        r = np.hypot(A, B)
+        ok &= np.isfinite(r) & np.isfinite(C) & (r > _EPS)
+        phi = np.arctan2(B, A)
+        # |C / r| > 1 only through noise (double root for small t/d): clamp to the closest yaw
+        delta = np.arccos(np.clip(np.where(ok, C / np.where(ok, r, 1.0), 1.0), -1.0, 1.0))
+    yaw = np.stack([phi + delta, phi - delta], axis=1)
+    return np.where(ok[:, None], yaw, 0.0), h1, h2, h3, h4, ok
 
 
 def relpose_upright_planar_homography_2pt(x1, x2) -> list[PlanarMotion]:
