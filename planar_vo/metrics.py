@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from evo.core import metrics, sync
+from evo.core.filters import FilterException
 from evo.core.geometry import GeometryException
 from evo.core.trajectory import PoseTrajectory3D
 
@@ -94,7 +95,7 @@ def rpe_per_metre(gt: PoseTrajectory3D, est: PoseTrajectory3D, relation: metrics
                       all_pairs=True, pairs_from_reference=True)
     try:
         rpe.process_data((gt, est))
-    except metrics.MetricsException:  # the path is shorter than one segment
+    except (metrics.MetricsException, FilterException):  # no pair of poses delta_m apart
         return float("nan")
     return float(rpe.get_statistic(metrics.StatisticsType.mean)) / delta_m
 

@@ -54,3 +54,12 @@ def test_planarity_flags_handheld_motion():
     bumpy[:, 2, 3] += np.linspace(0, 0.3, n)
     assert planarity(bumpy)["height_range_m"] == pytest.approx(0.3)
     assert path_length(np.zeros((1, 3))) == 0.0
+
+
+def test_rpe_is_nan_when_the_path_is_shorter_than_its_segment():
+    n = 11
+    stamps = np.arange(n) * 0.1
+    gt = np.stack([np.linspace(0, 0.5, n), np.zeros(n), np.zeros(n)], 1)  # 0.5 m < the 1 m RPE segment
+    e = trajectory_errors(stamps, _cam_poses(gt), stamps, _cam_poses(gt))
+    assert e.matched == n and math.isnan(e.rpe_trans_per_m) and math.isnan(e.rpe_rot_deg_per_m)
+    assert e.ate_rmse_m < 1e-12
