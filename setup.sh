@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # One-step, idempotent set-up: Debian runtime library for open3d, a virtual
-# environment in .venv, and an editable install of planar-vo with test extras.
+# environment in .venv, and an editable install of planar-vo with test extras (which pull
+# the sim extra: open3d, for the synthetic renderer the demo and the tests use).
 set -euo pipefail
 cd "$(dirname "$0")"
 PY=${PYTHON:-python3}

@@ -1,6 +1,11 @@
 """Back-end: GTSAM planar pose graph with SE(2) step factors and Manhattan-frame rotation
 factors, solved in batch (Levenberg-Marquardt) or incrementally (iSAM2). Pure: no file I/O.
 
+``backend/`` (installed as ``planar_vo.backend``; imports ``planar_vo.core`` and itself only):
+``config.py`` settings; ``factors.py`` noise models and factors; ``association.py`` Manhattan
+frame association; ``graph.py`` ``PlanarPoseGraph`` / ``IncrementalPlanarPoseGraph``. Its
+test inputs are simulated in ``planar_vo.sim.simulate`` (workshop).
+
 Public names are imported lazily so that importing the package does not load gtsam.
 """
 from __future__ import annotations
@@ -12,8 +17,6 @@ _EXPORTS = {
     "PlanarPoseGraph": "planar_vo.backend.graph",
     "IncrementalPlanarPoseGraph": "planar_vo.backend.graph",
     "ManhattanAssociator": "planar_vo.backend.association",
-    "simulate_manhattan_sequence": "planar_vo.backend.simulate",
-    "trajectory_errors": "planar_vo.backend.simulate",
 }
 
 __all__ = sorted(_EXPORTS)

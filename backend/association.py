@@ -18,7 +18,7 @@ import numpy as np
 
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.factors import HALF_PI, TWO_PI, robust_weight
-from planar_vo.frontend.types import ManhattanObservation
+from planar_vo.core.steps import ManhattanObservation
 
 
 @dataclass
@@ -77,10 +77,6 @@ class ManhattanAssociator:
     @property
     def theta(self) -> float:
         return float(self._x[0])
-
-    @property
-    def theta_variance(self) -> float:
-        return float(self._P[0, 0])
 
     @property
     def n_frames(self) -> int:

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from planar_vo.core.errors import ConfigError
+
 KernelName = Literal["huber", "cauchy", "none"]
 
 
@@ -109,18 +111,18 @@ class BackendConfig:
                     "isam2_relinearize_xy", "isam2_relinearize_theta_deg")
         for name in positive:
             if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+                raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "manhattan_instance_size",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+                raise ConfigError(f"config key 'backend.{name}' must be >= 0, got {getattr(self, name)!r}")
         for name in ("new_frame_min_observations", "new_frame_window", "lm_max_iterations",
                      "isam2_relinearize_skip"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+                raise ConfigError(f"config key 'backend.{name}' must be >= 1, got {getattr(self, name)!r}")
         if self.same_frame_deg >= 22.5:
-            raise ValueError(f"same_frame_deg must be < 22.5 (frames closer than 45 deg are told apart), "
+            raise ConfigError(f"config key 'backend.same_frame_deg' must be < 22.5 (frames closer than 45 deg are told apart), "
                              f"got {self.same_frame_deg}")
         if self.gate_max_deg >= 45.0:
-            raise ValueError(f"gate_max_deg must be < 45 (the 90-degree ambiguity), got {self.gate_max_deg}")
+            raise ConfigError(f"config key 'backend.gate_max_deg' must be < 45 (the 90-degree ambiguity), got {self.gate_max_deg}")

@@ -38,6 +38,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import M, X
 
+from planar_vo.core.errors import ConfigError
+
 __all__ = ["X", "M", "robust_noise", "step_noise", "manhattan_factor", "manhattan_anchor",
            "manhattan_residual", "robust_weight", "manhattan_tie", "manhattan_value", "TWO_PI", "HALF_PI"]
 
@@ -55,7 +57,7 @@ def _kernel(name: str, parameter: float):
         return gtsam.noiseModel.mEstimator.Cauchy.Create(parameter)
     if name == "none":
         return None
-    raise ValueError(f"unknown robust kernel {name!r}; use 'huber', 'cauchy' or 'none'")
+    raise ConfigError(f"config key 'backend.robust_kernel': unknown robust kernel {name!r}; use 'huber', 'cauchy' or 'none'")
 
 
 def robust_noise(base, kernel: str, parameter: float):
@@ -107,7 +109,7 @@ def manhattan_factor(pose: int, frame: int, measured: float, sigma: float, *, ki
         base = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
         return gtsam.CustomFactor(robust_noise(base, kernel, parameter), keys,
                                   partial(_manhattan_error, keys, measured))
-    raise ValueError(f"unknown Manhattan factor kind {kind!r}; use 'native' or 'custom'")
+    raise ConfigError(f"config key 'backend.manhattan_factor': unknown Manhattan factor kind {kind!r}; use 'native' or 'custom'")
 
 
 _ANCHOR_NOISE = gtsam.noiseModel.Diagonal.Precisions(np.array([1.0, 1.0, 0.0]))

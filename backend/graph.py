@@ -20,8 +20,8 @@ from planar_vo.backend.association import ManhattanAssociator
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor, manhattan_tie,
                                        manhattan_value, robust_noise, robust_weight, step_noise)
-from planar_vo.frontend.types import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
-from planar_vo.geometry import se2_compose, wrap_angle, wrap_quarter
+from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
+from planar_vo.core.geometry import se2_compose, wrap_angle, wrap_quarter
 
 __all__ = ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"]
 

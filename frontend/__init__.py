@@ -1,6 +1,13 @@
 """Front-end: levelling, inverse-depth plane histograms, Manhattan frames, features,
 the paper's planar solvers and frame-to-frame odometry. Pure: arrays in, results out.
 
+``frontend/`` (installed as ``planar_vo.frontend``; imports ``planar_vo.core`` and itself
+only, never ``io``): ``config.py`` settings; ``levelling.py`` mount pitch/roll/height;
+``planes.py`` inverse-depth histogram planes; ``manhattan.py`` local Manhattan frames;
+``features.py`` KLT/ORB tracking; ``solvers.py`` minimal solvers; ``estimators.py`` robust
+estimators (PoseLib-shaped 2-point RANSAC, direction-plus-point); ``planarity.py`` 6-DoF
+check; ``odometry.py`` ``PlanarOdometry``, one :class:`~planar_vo.core.steps.FrameResult` per frame.
+
 Public names are imported lazily so that light users (types only) stay light.
 """
 from __future__ import annotations
@@ -12,9 +19,9 @@ _EXPORTS = {
     "estimate_planar_motion_dpp": "planar_vo.frontend.estimators",
     "PlanarOdometry": "planar_vo.frontend.odometry",
     "FrontendConfig": "planar_vo.frontend.config",
-    "ManhattanObservation": "planar_vo.frontend.types",
-    "Step": "planar_vo.frontend.types",
-    "FrameResult": "planar_vo.frontend.types",
+    "ManhattanObservation": "planar_vo.core.steps",
+    "Step": "planar_vo.core.steps",
+    "FrameResult": "planar_vo.core.steps",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -9,7 +9,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from planar_vo.errors import ConfigError
+#: Depth readings used (m), ``(min, max)``: Kinect v2 reads from ~0.5 m. Default of
+#: :attr:`FrontendConfig.min_depth` / ``max_depth``, which the plane detector and the
+#: feature tracker both take.
+DEFAULT_DEPTH_RANGE = (0.3, 8.0)
+
+from planar_vo.core.errors import ConfigError
 
 
 def _positive(section: str, **values: float) -> None:
@@ -20,9 +25,11 @@ def _positive(section: str, **values: float) -> None:
 
 @dataclass
 class LevellingConfig:
-    """Camera pitch/roll/height. Precedence: these keys, then the log's mount, then the floor.
+    """Camera pitch/roll/height: the one place a mount is set (``planar-vo run --pitch-deg
+    --roll-deg --height`` write these keys). Precedence: these keys, then the log's mount,
+    then the floor.
 
-    ``pitch_deg``/``roll_deg`` fix the tilt (REP 103 mount angles: pitch > 0 looks down);
+    ``pitch_deg``/``roll_deg`` fix the tilt (REP 103 mount angles: pitch > 0 looks down; both or neither);
     ``height_m`` fixes the camera height above the floor. Whatever is left unset is
     estimated from the ground plane over the first ``init_frames`` frames (robust median)
     and, with ``refine``, refined as the run goes.
@@ -43,6 +50,9 @@ class LevellingConfig:
             raise ConfigError("config key 'levelling.init_frames' must be >= 1 and <= 'levelling.window'")
         if self.height_m is not None:
             _positive("levelling", height_m=self.height_m)
+        if (self.pitch_deg is None) != (self.roll_deg is None):
+            raise ConfigError("mount tilt needs both pitch_deg and roll_deg (config keys "
+                              "'levelling.pitch_deg', 'levelling.roll_deg'; flags --pitch-deg --roll-deg)")
 
 
 @dataclass
@@ -50,8 +60,6 @@ class PlaneConfig:
     """Inverse-depth histogram plane detection (paper Sec. 2.1)."""
 
     stride: int = 4                  # use every stride-th pixel in both directions
-    min_depth: float = 0.3           # metres; Kinect v2 reads from ~0.5 m
-    max_depth: float = 8.0
     n_invdepth_bins: int = 192       # inverse-depth axis of both histograms
     n_image_bins: int = 160          # levelled row / column axis
     min_cell_count: int = 6          # a histogram cell must hold this many samples to vote
@@ -67,12 +75,10 @@ class PlaneConfig:
     systematic_fraction: float = 0.3  # share of the depth noise assumed correlated across a plane
 
     def __post_init__(self) -> None:
-        _positive("planes", stride=self.stride, min_depth=self.min_depth,
+        _positive("planes", stride=self.stride,
                   n_invdepth_bins=self.n_invdepth_bins, n_image_bins=self.n_image_bins,
                   hough_step_deg=self.hough_step_deg, inlier_rel_depth=self.inlier_rel_depth,
                   refit_sigmas=self.refit_sigmas)
-        if self.max_depth <= self.min_depth:
-            raise ConfigError("config key 'planes.max_depth' must exceed 'planes.min_depth'")
 
 
 @dataclass
@@ -124,8 +130,6 @@ class FeatureConfig:
     orb_max_hamming: int = 64
     depth_window: int = 1            # depth from a (2w+1)^2 neighbourhood
     depth_edge_rel: float = 0.03     # reject if the neighbourhood spans more than this (relative)
-    min_depth: float = 0.3
-    max_depth: float = 8.0
 
     def __post_init__(self) -> None:
         _positive("features", max_corners=self.max_corners, klt_window=self.klt_window,
@@ -163,7 +167,6 @@ class OdometryConfig:
     #: a plane near the cut-off keeps only the points noise brought nearer (7-11 cm bias).
     wall_max_offset_m: float = 4.0
     planarity_check: bool = True     # fit a 6-DoF motion on steps into frames without a floor, to judge planarity
-    ransac_threshold_m: float = 0.03     # 3-D point transfer error (dpp, metric 2pt)
     ransac_threshold_px: float = 1.5     # image error (2pt), converted with fx
     ransac_iterations: int = 200
     seed: int = 0
@@ -185,8 +188,16 @@ class OdometryConfig:
 
 @dataclass
 class FrontendConfig:
+    #: Depth readings used by the plane detector and the feature tracker, metres.
+    min_depth: float = DEFAULT_DEPTH_RANGE[0]
+    max_depth: float = DEFAULT_DEPTH_RANGE[1]
     levelling: LevellingConfig = field(default_factory=LevellingConfig)
     planes: PlaneConfig = field(default_factory=PlaneConfig)
     manhattan: ManhattanConfig = field(default_factory=ManhattanConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+
+    def __post_init__(self) -> None:
+        _positive("frontend", min_depth=self.min_depth)
+        if self.max_depth <= self.min_depth:
+            raise ConfigError("config key 'frontend.max_depth' must exceed 'frontend.min_depth'")

@@ -45,9 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 from planar_vo.frontend.solvers import PlanarMotion, homography_2pt_batch
-from planar_vo.geometry import rot_x, rot_z, wrap_angle
+from planar_vo.core.geometry import rot_x, rot_z, wrap_angle
 
 __all__ = [
     "TwoPointOptions",
@@ -57,7 +57,8 @@ __all__ = [
     "estimate_planar_motion_2pt",
     "estimate_planar_motion_2pt_metric",
     "estimate_planar_motion_dpp",
-    "estimate_planar_motion_with_solver",
+    "PlanarTwoPointEstimator",
+    "ransac",
     "levelling_tilt",
     "sampson_errors",
 ]
@@ -486,86 +487,139 @@ def _homography_hypotheses(x1: np.ndarray, x2: np.ndarray, idx: np.ndarray):
     return yaw[ok].reshape(-1), t[ok].reshape(-1, 3)
 
 
-def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=None, sample_size: int = 2):
-    """Shared RANSAC + Sampson refinement. Returns (yaw, t_dir (3,), info).
+class PlanarTwoPointEstimator:
+    """The 2-point planar RANSAC problem, shaped like PoseLib's estimators: ``sample_size``,
+    :meth:`generate` (minimal solver), :meth:`score` (MSAC on the Sampson error with a
+    chirality test) and :meth:`refine` (Sampson least squares, then the levelling-error
+    model); :func:`ransac` drives any of them.
 
-    ``solver(x1, x2, idx (K, sample_size)) -> (yaw (H,), t (H, 3))`` proposes hypotheses;
-    the default is the vectorised 2-point homography solver (another minimal solver, e.g.
-    PoseLib's, can be benchmarked inside the same loop).
+    ``x1``, ``x2``: (N, 2) float64 levelled normalised coordinates. A variant (another
+    minimal solver, e.g. PoseLib's upright-planar ones in ``planar-vo bench solvers``) is a
+    subclass overriding :meth:`generate` and ``sample_size``; scoring and refinement stay
+    the same, so the variants compare on equal terms.
     """
-    solver = solver or _homography_hypotheses
-    N = x1.shape[0]
-    info = EstimateInfo(inliers=np.zeros(N, dtype=bool))
-    if N < sample_size:
-        info.status = TOO_FEW_POINTS
-        return None, None, info
-    thr = opt.threshold()
-    thr2 = thr * thr
-    par_tol = 2.0 * thr
-    rng = np.random.default_rng(opt.seed)
-    m = _Matches(x1, x2)
 
-    best_score, best_yaw, best_t = math.inf, 0.0, (0.0, 1.0)  # t as (tx, tz)
-    best_ok = None
-    drawn = 0
-    needed = max(opt.min_iterations, 1)
-    while drawn < min(needed, opt.max_iterations):
-        K = max(int(min(opt.batch_size, opt.max_iterations - drawn, max(needed - drawn, 1))), 1)
-        if sample_size == 2:
-            i = rng.integers(0, N, K)
-            idx = np.stack([i, (i + rng.integers(1, N, K)) % N], axis=1)
-        else:
-            idx = np.argsort(rng.random((K, N)), axis=1)[:, :sample_size]
-        drawn += K
-        yaw, t = solver(x1, x2, idx)
-        if len(yaw) == 0:
-            continue
-        score, sign, okm = _score(m, np.cos(yaw), np.sin(yaw), t[:, 0], t[:, 2], thr2, par_tol)
-        k = int(np.argmin(score))
-        if score[k] < best_score:
-            best_score, best_yaw = float(score[k]), float(yaw[k])
-            best_t = (float(sign[k] * t[k, 0]), float(sign[k] * t[k, 2]))
-            best_ok = okm[k]
-            needed = max(_ransac_needed(opt.confidence, best_ok.sum() / N, sample_size), opt.min_iterations)
-    info.iterations = drawn
-    if best_ok is None or best_ok.sum() < max(opt.min_inliers, 2):
-        info.status = NO_MODEL
-        return None, None, info
+    sample_size = 2
 
-    theta, alpha = best_yaw, math.atan2(best_t[0], best_t[1])
-    inl = best_ok
-    refine_iters = 0
-    tilt = None  # (pitch, roll) of the levelling-error model when it wins
-    if opt.refine:
+    def __init__(self, x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions):
+        self.x1, self.x2, self.opt = x1, x2, opt
+        self.n = x1.shape[0]
+        self.thr = opt.threshold()
+        self.thr2 = self.thr * self.thr
+        self.parallax_tol = 2.0 * self.thr
+        self.matches = _Matches(x1, x2)
+
+    def sample(self, rng: np.random.Generator, k: int) -> np.ndarray:
+        """(k, sample_size) indices of distinct points."""
+        n = self.n
+        if self.sample_size == 2:
+            i = rng.integers(0, n, k)
+            return np.stack([i, (i + rng.integers(1, n, k)) % n], axis=1)
+        return np.argsort(rng.random((k, n)), axis=1)[:, :self.sample_size]
+
+    def generate(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hypotheses of samples ``idx``: yaw (H,) rad and unit t (H, 3), either sign."""
+        return _homography_hypotheses(self.x1, self.x2, idx)
+
+    def score(self, yaw: np.ndarray, t: np.ndarray):
+        """``(score (H,), sign of t (H,), inlier masks (H, N))`` of hypotheses."""
+        return _score(self.matches, np.cos(yaw), np.sin(yaw), t[:, 0], t[:, 2], self.thr2, self.parallax_tol)
+
+    def _score_one(self, theta: float, alpha: float):
+        """:meth:`score` of one model ``(theta, alpha)`` (yaw, heading of t)."""
+        return _score(self.matches, np.array([math.cos(theta)]), np.array([math.sin(theta)]),
+                      np.array([math.sin(alpha)]), np.array([math.cos(alpha)]), self.thr2, self.parallax_tol)
+
+    def refine(self, theta: float, alpha: float, inl: np.ndarray):
+        """Sampson refinement of ``(theta, alpha)`` (yaw, translation heading) over inliers
+        re-selected while they change; then the levelling-error model when it pays.
+        Returns ``(theta, alpha, inliers, tilt (pitch, roll) or None, iterations)``."""
+        opt, m = self.opt, self.matches
+        iterations = 0
         rounds = 3  # refine, re-select inliers, refine again while they change
         for rnd in range(rounds):
             sub = m.subset(inl)
             fun = lambda p, jac: _sampson_residuals_2(sub, p[0], p[1], jac)  # noqa: E731
             p, _cost, its, _J = _levenberg_marquardt(fun, np.array([theta, alpha]), opt.max_refine_iterations)
-            refine_iters += its
+            iterations += its
             theta, alpha = float(p[0]), float(p[1])
             if rnd == rounds - 1:
                 break  # the reported inliers are the ones the fit used
-            sc, sign, okm = _score(m, np.array([math.cos(theta)]), np.array([math.sin(theta)]),
-                                   np.array([math.sin(alpha)]), np.array([math.cos(alpha)]), thr2, par_tol)
+            _sc, sign, okm = self._score_one(theta, alpha)
             if sign[0] < 0:
                 alpha += math.pi
             new = okm[0]
             if np.array_equal(new, inl) or new.sum() < max(opt.min_inliers, 2):
                 break
             inl = new
+        tilt = None
         if opt.refine_levelling:
-            planar_score = float(_score(m, np.array([math.cos(theta)]), np.array([math.sin(theta)]),
-                                        np.array([math.sin(alpha)]), np.array([math.cos(alpha)]),
-                                        thr2, par_tol)[0][0])
-            p, lev_score, lev_inl, its = _refine_levelling(x1, x2, theta, alpha, thr, planar_score, opt)
-            refine_iters += its
-            # BIC penalty of the two tilt angles, image noise sigma ~ thr / 3
-            if lev_score + 2.0 * math.log(N) * thr2 / 9.0 < planar_score and lev_inl.sum() >= max(opt.min_inliers, 2):
-                theta, alpha, inl = float(p[0]), float(p[1]), lev_inl
-                tilt = (float(p[2]), float(p[3]))
+            theta, alpha, inl, tilt, its = self._refine_levelling(theta, alpha, inl)
+            iterations += its
+        return theta, alpha, inl, tilt, iterations
+
+    def _refine_levelling(self, theta: float, alpha: float, inl: np.ndarray):
+        planar_score = float(self._score_one(theta, alpha)[0][0])
+        p, lev_score, lev_inl, its = _refine_levelling(self.x1, self.x2, theta, alpha, self.thr, planar_score,
+                                                       self.opt)
+        # BIC penalty of the two tilt angles, image noise sigma ~ thr / 3
+        if (lev_score + 2.0 * math.log(self.n) * self.thr2 / 9.0 < planar_score
+                and lev_inl.sum() >= max(self.opt.min_inliers, 2)):
+            return float(p[0]), float(p[1]), lev_inl, (float(p[2]), float(p[3])), its
+        return theta, alpha, inl, None, its
+
+
+def ransac(est: PlanarTwoPointEstimator, opt: TwoPointOptions):
+    """Adaptive RANSAC over ``est``: batches of samples until the confidence is reached.
+    Returns ``(yaw, (tx, tz), inlier mask (N,) or None, samples drawn)`` of the best hypothesis."""
+    rng = np.random.default_rng(opt.seed)
+    n = est.n
+    best_score, best_yaw, best_t = math.inf, 0.0, (0.0, 1.0)  # t as (tx, tz)
+    best_ok = None
+    drawn = 0
+    needed = max(opt.min_iterations, 1)
+    while drawn < min(needed, opt.max_iterations):
+        k = max(int(min(opt.batch_size, opt.max_iterations - drawn, max(needed - drawn, 1))), 1)
+        idx = est.sample(rng, k)
+        drawn += k
+        yaw, t = est.generate(idx)
+        if len(yaw) == 0:
+            continue
+        score, sign, okm = est.score(yaw, t)
+        best = int(np.argmin(score))
+        if score[best] < best_score:
+            best_score, best_yaw = float(score[best]), float(yaw[best])
+            best_t = (float(sign[best] * t[best, 0]), float(sign[best] * t[best, 2]))
+            best_ok = okm[best]
+            needed = max(_ransac_needed(opt.confidence, best_ok.sum() / n, est.sample_size), opt.min_iterations)
+    return best_yaw, best_t, best_ok, drawn
+
+
+def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, estimator=PlanarTwoPointEstimator):
+    """RANSAC + refinement with ``estimator`` (a :class:`PlanarTwoPointEstimator` class).
+    Returns ``(yaw, t_dir (3,), info)``; yaw None when no model was found."""
+    est = estimator(x1, x2, opt)
+    info = EstimateInfo(inliers=np.zeros(est.n, dtype=bool))
+    if est.n < est.sample_size:
+        info.status = TOO_FEW_POINTS
+        return None, None, info
+    best_yaw, best_t, best_ok, info.iterations = ransac(est, opt)
+    if best_ok is None or best_ok.sum() < max(opt.min_inliers, 2):
+        info.status = NO_MODEL
+        return None, None, info
+    theta, alpha, inl = best_yaw, math.atan2(best_t[0], best_t[1]), best_ok
+    refine_iters, tilt = 0, None  # tilt: (pitch, roll) of the levelling-error model when it wins
+    if opt.refine:
+        theta, alpha, inl, tilt, refine_iters = est.refine(theta, alpha, inl)
     t_dir = np.array([math.sin(alpha), 0.0, math.cos(alpha)])
     theta = float(wrap_angle(theta))
+    _fill_info(info, x1, x2, inl, theta, alpha, t_dir, tilt, est.thr)
+    info.refine_iterations = refine_iters
+    return theta, t_dir, info
+
+
+def _fill_info(info: EstimateInfo, x1, x2, inl, theta: float, alpha: float, t_dir, tilt, thr: float) -> None:
+    """Inliers, cost and the pure-rotation test of the final model."""
     if tilt is None:
         e = sampson_errors(theta, t_dir, x1[inl], x2[inl])
         u1, u2 = x1[inl], x2[inl]
@@ -580,7 +634,6 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
     info.inliers = inl
     info.num_inliers = int(inl.sum())
     info.cost = float(e @ e)
-    info.refine_iterations = refine_iters
     # pure rotation: x2 ~ R x1 explains the inliers (in the corrected frame), so t is unobservable
     c, s = math.cos(theta), math.sin(theta)
     X1, Y1 = u1[:, 0], u1[:, 1]
@@ -590,10 +643,10 @@ def _ransac_2pt(x1: np.ndarray, x2: np.ndarray, opt: TwoPointOptions, solver=Non
     info.extra["rotation_only_median_error"] = float(np.median(rot_err))
     if np.median(rot_err) < thr:
         info.status = PURE_ROTATION
-    return theta, t_dir, info
 
 
-def estimate_planar_motion_2pt(x1, x2, options: TwoPointOptions | None = None):
+def estimate_planar_motion_2pt(x1, x2, options: TwoPointOptions | None = None,
+                               estimator: type[PlanarTwoPointEstimator] = PlanarTwoPointEstimator):
     """Planar motion from 2-D matches: 2-point RANSAC + Sampson refinement (paper Sec. 2.2, 3.1).
 
     ``x1``, ``x2``: (N, 2) float64 normalised coordinates of the same points in the levelled
@@ -603,30 +656,13 @@ def estimate_planar_motion_2pt(x1, x2, options: TwoPointOptions | None = None):
     ``None`` when ``info.status`` is ``"too_few_points"`` / ``"no_model"``; ``info`` an
     :class:`EstimateInfo` (``inliers`` (N,) bool, ``iterations``, ``cost``, ``status``).
     With ``status == "pure_rotation"`` the yaw is valid and ``t`` is not observable.
+    ``estimator``: the RANSAC problem (a subclass for another minimal solver).
     """
     opt = options or TwoPointOptions()
     x1 = _as_points("x1", x1, 2)
     x2 = _as_points("x2", x2, 2)
     _check_same("x1", x1, "x2", x2)
-    theta, t_dir, info = _ransac_2pt(x1, x2, opt)
-    if theta is None:
-        return None, info
-    return PlanarMotion(theta, t_dir, pure_rotation=info.status == PURE_ROTATION), info
-
-
-def estimate_planar_motion_with_solver(x1, x2, solver, sample_size: int,
-                                       options: TwoPointOptions | None = None):
-    """Same RANSAC, scoring and refinement as :func:`estimate_planar_motion_2pt`, any minimal solver.
-
-    ``solver(x1, x2, idx) -> (yaw (H,), t (H, 3))`` turns ``idx`` (K, ``sample_size``) sample
-    indices into hypotheses (unit ``t``, either sign). Used to benchmark other planar
-    solvers (e.g. PoseLib's upright-planar ones) on equal terms.
-    """
-    opt = options or TwoPointOptions()
-    x1 = _as_points("x1", x1, 2)
-    x2 = _as_points("x2", x2, 2)
-    _check_same("x1", x1, "x2", x2)
-    theta, t_dir, info = _ransac_2pt(x1, x2, opt, solver=solver, sample_size=sample_size)
+    theta, t_dir, info = _ransac_2pt(x1, x2, opt, estimator)
     if theta is None:
         return None, info
     return PlanarMotion(theta, t_dir, pure_rotation=info.status == PURE_ROTATION), info
@@ -710,12 +746,35 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
         T = levelling_tilt(*info.extra["levelling_error"])
         x1, x2, P1, P2 = _untilt(x1, T), _untilt(x2, T), P1 @ T, P2 @ T
     inl = info.inliers
+    scale = _metric_scale(theta, t_dir, info, P1, P2, opt)
+    if scale is None:
+        info.status = NO_DEPTH
+        return None, info
+    t0, Q1, Q2, inv_sig, scale_inl = scale
+    w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
+    # Sampson terms stay well defined for small non-zero t (they are scale invariant)
+    sub = _Matches(x1[inl], x2[inl])
+    fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
+    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
+    info.refine_iterations += its
+    info.cost = cost
+    info.covariance = _covariance(J, cost, 3)
+    info.scale_inliers = scale_inl
+    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
+                          pure_rotation=info.status == PURE_ROTATION)
+    return motion, info
+
+
+def _metric_scale(theta: float, t_dir, info: EstimateInfo, P1, P2, opt: MetricTwoPointOptions):
+    """The metric translation ``t0`` (3,) from the depths of the epipolar inliers, with the
+    points that agree on it: ``(t0, Q1, Q2, 1 / sigma, scale inlier mask (N,))``, or None
+    when no inlier has a valid depth or none agrees."""
+    inl = info.inliers
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
     dep = inl & valid
     if not dep.any():
-        info.status = NO_DEPTH
-        return None, info
+        return None
     c, s = math.cos(theta), math.sin(theta)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     Q1, Q2 = P1[dep], P2[dep]
@@ -731,23 +790,10 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     res = np.hypot(diff[:, 0] - t0[0], diff[:, 2] - t0[2]) / sig
     keep = res * res < opt.depth_chi2
     if not keep.any():
-        info.status = NO_DEPTH
-        return None, info
+        return None
     scale_inl = np.zeros_like(inl)
     scale_inl[np.flatnonzero(dep)[keep]] = True
-    Q1, Q2, inv_sig = Q1[keep], Q2[keep], 1.0 / sig[keep]
-    w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
-    # Sampson terms stay well defined for small non-zero t (they are scale invariant)
-    sub = _Matches(x1[inl], x2[inl])
-    fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
-    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
-    info.refine_iterations += its
-    info.cost = cost
-    info.covariance = _covariance(J, cost, 3)
-    info.scale_inliers = scale_inl
-    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
-                          pure_rotation=info.status == PURE_ROTATION)
-    return motion, info
+    return t0, Q1[keep], Q2[keep], 1.0 / sig[keep], scale_inl
 
 
 # ------------------------------------------------------------------ direction-plus-point
@@ -779,8 +825,23 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     if len(idx) < max(opt.min_inliers, 1):
         info.status = TOO_FEW_POINTS
         return None, info
+    rx, rz, dx, dz, vx, vz = _dpp_candidates(P1[idx], P2[idx], yaw, opt)
+    best_ok, info.iterations = _dpp_ransac(dx, dz, vx, vz, opt)
+    if best_ok is None or best_ok.sum() < opt.min_inliers:
+        info.status = NO_MODEL
+        return None, info
+    tx, tz, inl = _dpp_refit(dx, dz, vx, vz, best_ok, opt)
+    info.num_inliers, info.cost, info.covariance = _dpp_covariance(rx, rz, dx, dz, vx, vz, inl, tx, tz, yaw_sigma)
+    mask = np.zeros(N, dtype=bool)
+    mask[idx[inl]] = True
+    info.inliers = mask
+    return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
+
+
+def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions):
+    """Per-match translation candidates ``d = P2 - R P1`` (x, z) and their variances:
+    ``(rx, rz, dx, dz, vx, vz)``, each (M,), ``(rx, rz)`` the rotated view-1 points."""
     c, s = math.cos(yaw), math.sin(yaw)
-    Q1, Q2 = P1[idx], P2[idx]
     rx = c * Q1[:, 0] + s * Q1[:, 2]
     rz = -s * Q1[:, 0] + c * Q1[:, 2]
     dx, dz = Q2[:, 0] - rx, Q2[:, 2] - rz          # per-match t candidates (eq. 2, our sign)
@@ -792,10 +853,18 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     pix = (opt.pixel_sigma / opt.focal_px) ** 2
     vx = pix * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2) + (Q1[:, 0] / Q1[:, 2]) ** 2 * vz1 + (Q2[:, 0] / Q2[:, 2]) ** 2 * vz2
     vz = vz1 + vz2 + pix * (Q1[:, 0] ** 2 + Q2[:, 0] ** 2)
-    # each hypothesis t_k = d_k is uncertain too: test the residual against var_i + var_k.
-    # Small sets: every match is a hypothesis; large ones: adaptive random batches.
+    return rx, rz, dx, dz, vx, vz
+
+
+def _dpp_ransac(dx, dz, vx, vz, opt: DirPointOptions):
+    """1-point RANSAC on the candidates: ``(inlier mask of the best hypothesis or None, drawn)``.
+
+    Each hypothesis ``t_k = d_k`` is uncertain too: the residual is tested against
+    ``var_i + var_k``. Small sets: every match is a hypothesis; large ones: adaptive
+    random batches.
+    """
     rng = np.random.default_rng(opt.seed)
-    M = len(idx)
+    M = len(dx)
     best_score, best_ok, drawn = math.inf, None, 0
     needed = 1.0
     while drawn < min(max(needed, 1.0), opt.max_iterations, M):
@@ -809,12 +878,13 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
         if score[k] < best_score:
             best_score, best_ok = float(score[k]), ok[k]
             needed = _ransac_needed(opt.confidence, best_ok.sum() / M, 1)
-    info.iterations = drawn
-    if best_ok is None or best_ok.sum() < opt.min_inliers:
-        info.status = NO_MODEL
-        return None, info
-    inl = best_ok
-    for _ in range(3):  # weighted means, re-select against them
+    return best_ok, drawn
+
+
+def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
+    """Weighted means of the inliers' candidates, inliers re-selected against them:
+    ``(tx, tz, inliers)``."""
+    for _ in range(3):
         wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
         tx = float((wx * dx[inl]).sum() / wx.sum())
         tz = float((wz * dz[inl]).sum() / wz.sum())
@@ -822,6 +892,11 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
         if new.sum() < opt.min_inliers or np.array_equal(new, inl):
             break
         inl = new
+    return tx, tz, inl
+
+
+def _dpp_covariance(rx, rz, dx, dz, vx, vz, inl, tx: float, tz: float, yaw_sigma: float):
+    """``(inliers, chi-square, covariance (3, 3) over (yaw, t_x, t_z))`` of the estimate."""
     wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
     n_in = int(inl.sum())
     # reduced chi-square per axis, never below 1: a few agreeing matches must not claim
@@ -836,10 +911,4 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     cov = yaw_sigma ** 2 * np.outer(g, g)
     cov[1, 1] += fx / wx.sum()
     cov[2, 2] += fz / wz.sum()
-    mask = np.zeros(N, dtype=bool)
-    mask[idx[inl]] = True
-    info.inliers = mask
-    info.num_inliers = n_in
-    info.cost = chi2
-    info.covariance = cov
-    return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
+    return n_in, chi2, cov

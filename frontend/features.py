@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from planar_vo.frontend.config import FeatureConfig
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.frontend.config import DEFAULT_DEPTH_RANGE, FeatureConfig
+from planar_vo.core.types import CameraIntrinsics
 
 #: Iterations of the undistortion fixed point: OpenCV's default 5 leave ~0.01 px in the
 #: corners of strongly distorted lenses (Kinect v1 k3 = 1.16).
@@ -46,11 +46,6 @@ class FeatureSet:
     def __len__(self) -> int:
         return len(self.px)
 
-    @property
-    def has_depth(self) -> np.ndarray:
-        """(N,) bool."""
-        return np.isfinite(self.P_cam[:, 2])
-
 
 def undistort(px: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
     """Normalised camera coordinates (N, 2) float64 of pixels ``px`` (N, 2)."""
@@ -65,7 +60,8 @@ def undistort(px: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
                             (px[:, 1] - intrinsics.cy) / intrinsics.fy])
 
 
-def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfig) -> np.ndarray:
+def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfig,
+         depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE) -> np.ndarray:
     """3-D points (N, 3) float64 in the camera frame, NaN where depth is unusable.
 
     Depth is read at the pixel nearest to ``px`` (N, 2) (the mean of its readable neighbours
@@ -84,7 +80,7 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     off = np.arange(-r, r + 1)
     win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
     win = win.reshape(n, -1).astype(np.float64)
-    ok = (win >= config.min_depth) & (win <= config.max_depth)
+    ok = (win >= depth_range[0]) & (win <= depth_range[1])
     centre = win[:, win.shape[1] // 2]
     # Depth of the pixel itself when readable, else the mean of the readable neighbours.
     cnt = ok.sum(1)
@@ -147,9 +143,11 @@ class FeatureTracker:
     sets (empty for the first frame).
     """
 
-    def __init__(self, intrinsics: CameraIntrinsics, config: FeatureConfig | None = None):
+    def __init__(self, intrinsics: CameraIntrinsics, config: FeatureConfig | None = None,
+                 depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE):
         self.intrinsics = intrinsics
         self.config = config or FeatureConfig()
+        self.depth_range = depth_range  # (min, max) m of readings lifted to 3-D
         c = self.config
         if c.method not in ("klt", "orb"):
             raise ValueError(f"features.method must be 'klt' or 'orb', got {c.method!r}")
@@ -164,11 +162,6 @@ class FeatureTracker:
         self.last_detected = 0  # corners newly detected in the last frame (diagnostics)
         self.last_gain = 1.0    # brightness ratio to the previous frame (diagnostics)
         self._prev_box = self._box = None  # coarse local means of the previous / current image
-
-    def reset(self) -> None:
-        self._prev = None
-        self._prev_pyr = None
-        self._prev_box = self._box = None
 
     def process(self, gray: np.ndarray, depth: np.ndarray) -> tuple[FeatureSet, np.ndarray]:
         """Associate ``gray`` (H, W) uint8 with the previous frame; ``depth`` (H, W) float32 m."""
@@ -298,4 +291,4 @@ class FeatureTracker:
 
     def _make_set(self, px, depth, desc=None) -> FeatureSet:
         xy = undistort(px, self.intrinsics)
-        return FeatureSet(px=px, xy=xy, P_cam=lift(px, xy, depth, self.config), desc=desc)
+        return FeatureSet(px=px, xy=xy, P_cam=lift(px, xy, depth, self.config, self.depth_range), desc=desc)

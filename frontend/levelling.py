@@ -4,7 +4,7 @@ The paper removes the camera's pitch and roll so that planar motion reduces to y
 a horizontal translation (Sec. 2.1, Fig. 1). Precedence for each quantity:
 configuration (``LevellingConfig.pitch_deg`` / ``roll_deg`` / ``height_m``), then the
 log's mount (``Mount.T_base_cam`` from /tf_static), then the floor: the floor normal seen
-in the camera is gravity (:func:`planar_vo.geometry.tilt_from_gravity`) and its offset is
+in the camera is gravity (:func:`planar_vo.core.geometry.tilt_from_gravity`) and its offset is
 the camera height. Floor estimates are pooled by a running median over a window, with
 estimates far from the current value rejected once initialised.
 """
@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo import geometry
+from planar_vo.core import geometry
 from planar_vo.frontend.config import LevellingConfig
-from planar_vo.io.types import Mount
+from planar_vo.core.types import Mount
 
 
 @dataclass
@@ -137,7 +137,7 @@ class Levelling:
         with the camera's heading along base x; given x, y and yaw are kept.
         """
         s = self.state
-        if self._given_mount is not None and s.source == "mount" and self.height_fixed:
+        if self._given_mount is not None and s.source == "mount" and self.height_fixed and self.config.height_m is None:
             return self._given_mount
         x, y, yaw = self._mount_xy_yaw
         T = np.eye(4)

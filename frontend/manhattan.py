@@ -21,7 +21,7 @@ import numpy as np
 
 from planar_vo.frontend.config import ManhattanConfig
 from planar_vo.frontend.planes import Plane
-from planar_vo.geometry import wrap_quarter
+from planar_vo.core.geometry import wrap_quarter
 
 
 @dataclass

@@ -33,8 +33,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from planar_vo import geometry
-from planar_vo.errors import InputError
+from planar_vo.core import geometry
+from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, estimate_planar_motion_dpp)
@@ -44,9 +44,9 @@ from planar_vo.frontend.manhattan import LocalFrame, ManhattanTracker, group_wal
 from planar_vo.frontend.planarity import out_of_plane_motion
 from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
-from planar_vo.frontend.types import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
-                                      ManhattanObservation, Step)
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
+from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
+                                      FrameResult, ManhattanObservation, Step)
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
 @dataclass
@@ -109,7 +109,7 @@ def _offset_sigma(w: Plane, floor: float) -> float:
     return math.sqrt(fit + sys_ ** 2 + floor ** 2)
 
 
-def _collinear(x: np.ndarray, min_spread: float, info: dict) -> bool:
+def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics) -> bool:
     """True when the (N, 2) image points lie along one line: the ratio of the smaller to
     the larger principal spread is below ``min_spread``. On plain walls the only corners
     are on the floor-wall junction, where KLT slides along the line (the aperture
@@ -119,7 +119,7 @@ def _collinear(x: np.ndarray, min_spread: float, info: dict) -> bool:
     sv = np.linalg.svd(x - x.mean(0), compute_uv=False)
     spread = float(sv[1] / sv[0]) if sv[0] > 0 else 0.0
     if spread < min_spread:
-        info.setdefault("rejected", []).append({"inlier_spread": spread})
+        info.rejected.append({"inlier_spread": spread})
         return True
     return False
 
@@ -209,8 +209,9 @@ class PlanarOdometry:
         self.config = config or FrontendConfig()
         c = self.config
         self._levelling = Levelling(c.levelling, mount)
-        self._planes = PlaneDetector(intrinsics, c.planes, self._levelling.state.R_lev_cam)
-        self._features = FeatureTracker(intrinsics, c.features)
+        depth_range = (c.min_depth, c.max_depth)
+        self._planes = PlaneDetector(intrinsics, c.planes, self._levelling.state.R_lev_cam, depth_range)
+        self._features = FeatureTracker(intrinsics, c.features, depth_range)
         self._manhattan = ManhattanTracker(c.manhattan)
         o = c.odometry
         self._dpp_opt = DirPointOptions(focal_px=intrinsics.fx, max_iterations=o.ransac_iterations, seed=o.seed)
@@ -248,7 +249,7 @@ class PlanarOdometry:
         t_start = clock()
         color, depth = self._check(frame)
         timings: dict[str, float] = {}
-        info: dict = {}
+        info = FrameDiagnostics()
 
         t0 = clock()
         det = self._detect_planes(depth, info)
@@ -273,7 +274,7 @@ class PlanarOdometry:
         x_lev, P_lev = levelled_features(fs, R)
         t3 = clock()
         timings["features"] = t_track + (t3 - t_lev)
-        info.update(features=len(fs), new_corners=new_corners, matches=len(matches))
+        info.features, info.new_corners, info.matches = len(fs), new_corners, len(matches)
 
         step = None
         lev_motion = (0.0, np.zeros(3), 0.0)  # levelled (yaw, t, yaw variance)
@@ -330,7 +331,7 @@ class PlanarOdometry:
             depth = depth.astype(np.float32)
         return color, depth
 
-    def _detect_planes(self, depth: np.ndarray, info: dict) -> PlaneDetection:
+    def _detect_planes(self, depth: np.ndarray, info: FrameDiagnostics) -> PlaneDetection:
         lev = self._levelling
         s = lev.state
         seed = self.last_detection.floor if self.last_detection is not None else None
@@ -349,13 +350,14 @@ class PlanarOdometry:
         floor_cam = None
         if floor is not None:
             floor_cam = (self._planes.R_lev_cam.T @ floor.normal).tolist()
-        info["floor_seen"] = floor is not None
-        info["planes"] = len(det.horizontals) + len(det.walls)
-        info["walls"] = len(det.walls)
-        info["wall_fraction"] = det.wall_fraction
-        info["floor_fraction"] = floor.support if floor is not None else 0.0
-        info["levelling"] = dict(s.as_dict(), floor_seen=floor is not None, floor_normal_cam=floor_cam,
-                                 camera_height_m=floor.offset if floor is not None else None)
+        info.floor_seen = floor is not None
+        info.planes = len(det.horizontals) + len(det.walls)
+        info.walls = len(det.walls)
+        info.wall_fraction = det.wall_fraction
+        info.floor_fraction = floor.support if floor is not None else 0.0
+        info.levelling = replace(s)  # a snapshot: the levelling goes on changing
+        info.floor_normal_cam = floor_cam
+        info.camera_height_m = floor.offset if floor is not None else None
         self.last_detection = det  # for diagnostics and tests; not part of FrameResult
         return det
 
@@ -391,14 +393,12 @@ class PlanarOdometry:
         ok = np.isfinite(x1).all(1) & np.isfinite(x2).all(1)
         x1, x2, P1, P2 = x1[ok], x2[ok], P1[ok], P2[ok]
         depth_ok = np.isfinite(P1[:, 2]) & np.isfinite(P2[:, 2])
-        info["matches_with_depth"] = int(depth_ok.sum())
+        info.matches_with_depth = int(depth_ok.sum())
         # The floor, when seen, judges planarity far better (planar_vo.pipeline): the 6-DoF
         # check is only needed on frames without one.
-        if c.planarity_check and depth_ok.sum() >= 8 and not info.get("floor_seen"):
+        if c.planarity_check and depth_ok.sum() >= 8 and not info.floor_seen:
             oop = out_of_plane_motion(P1[depth_ok], P2[depth_ok], seed=c.seed)
-            if oop is not None:
-                info["out_of_plane"] = {"tilt_deg": oop.tilt_deg, "dy_m": oop.dy_m, "inliers": oop.inliers,
-                                        "R": oop.R.tolist(), "t": oop.t.tolist()}
+            info.out_of_plane = oop
         return x1, x2, P1, P2, depth_ok
 
     def _dpp(self, prev: _Prev, frames, P1, P2, n_depth: int, yaw_prior: float, info):
@@ -428,7 +428,7 @@ class PlanarOdometry:
             if mf_yaw is None and f.score >= c.bridge_min_score:
                 mf_yaw = (yaw, yaw_sigma, local)
             motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
-            info.setdefault("dpp", []).append({"status": est.status, "inliers": est.num_inliers,
+            info.dpp.append({"status": est.status, "inliers": est.num_inliers,
                                                "track_id": f.track_id, "yaw_sigma": yaw_sigma})
             if motion is None or est.num_inliers < c.dpp_min_inliers:
                 continue
@@ -448,7 +448,7 @@ class PlanarOdometry:
         motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._2pt_opt)
         n_in = est.num_inliers
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
-        info["2pt"] = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
+        info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
                        "iterations": est.iterations}
         # A scale from a handful of depths cannot be checked against outliers.
         if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
@@ -468,7 +468,7 @@ class PlanarOdometry:
         var, var2 = dpp[1].covariance[0, 0], two[1].covariance[0, 0]
         d = float(geometry.wrap_angle(dpp[3] - two[0].yaw))
         gate = max(c.dpp_veto_sigmas * math.sqrt(var + var2), math.radians(c.dpp_veto_min_deg))
-        info["yaw_check"] = {"dpp_minus_2pt_deg": math.degrees(d), "sigma_deg": math.degrees(math.sqrt(var + var2)),
+        info.yaw_check = {"dpp_minus_2pt_deg": math.degrees(d), "sigma_deg": math.degrees(math.sqrt(var + var2)),
                              "vetoed": abs(d) > gate}
         return abs(d) > gate
 
@@ -490,7 +490,7 @@ class PlanarOdometry:
             self._since_yaw += 1
             cov = np.diag([sb ** 2, sb ** 2, s_theta ** 2])
             pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
-            info["bridge"] = how
+            info.bridge = how
             return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t, float(cov[2, 2]))
         self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
@@ -503,7 +503,7 @@ class PlanarOdometry:
         cov[0, 0] = sigma_yaw ** 2
         cov[1:, 1:] = cov_t + np.eye(2) * c.min_sigma_xy ** 2
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
-        info["partial"] = {"prior": how, "walls": n_walls}
+        info.partial = {"prior": how, "walls": n_walls}
         # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
         # takes back the errors of earlier guesses): the next guess turns at this rate.
         self._last_motion = (float(mf_yaw[2]), t.copy())
@@ -535,7 +535,7 @@ class PlanarOdometry:
         sd = np.sqrt(np.maximum(np.diag(cov_b), 0.0))
         if not (np.isfinite(cov_b).all() and sd[0] <= c.max_sigma_xy and sd[1] <= c.max_sigma_xy
                 and sd[2] <= math.radians(c.max_sigma_theta_deg)):
-            info.setdefault("rejected", []).append({"status": status, "sigma_xy_theta": sd.tolist()})
+            info.rejected.append({"status": status, "sigma_xy_theta": sd.tolist()})
             return None
         # Floors for what the inlier residuals cannot see (levelling, calibration).
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([c.min_sigma_xy ** 2, c.min_sigma_xy ** 2,

@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from planar_vo.frontend.config import PlaneConfig
+from planar_vo.frontend.config import DEFAULT_DEPTH_RANGE, PlaneConfig
 from planar_vo.frontend.features import UNDISTORT_CRITERIA
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 FLOOR, CEILING, HORIZONTAL, WALL = "floor", "ceiling", "horizontal", "wall"
 
@@ -127,9 +127,10 @@ class PlaneDetector:
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, config: PlaneConfig | None = None,
-                 R_lev_cam: np.ndarray | None = None):
+                 R_lev_cam: np.ndarray | None = None, depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE):
         self.intrinsics = intrinsics
         self.config = config or PlaneConfig()
+        self.depth_range = depth_range  # (min, max) m
         self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
         self.n_total = self._xy_cam.shape[0]
         step = math.radians(self.config.hough_step_deg)
@@ -159,7 +160,7 @@ class PlaneDetector:
         xs, ys = self._x[ok], self._y[ok]
         self._xr = (xs.min(), xs.max() + 1e-9)
         self._yr = (ys.min(), ys.max() + 1e-9)
-        self._wr = (1.0 / c.max_depth, 1.0 / c.min_depth)
+        self._wr = (1.0 / self.depth_range[1], 1.0 / self.depth_range[0])
         # Pre-computed bins of the image axes (the inverse-depth bin changes per frame).
         nb = c.n_image_bins
         self._xbin = np.clip(((self._x - self._xr[0]) / (self._xr[1] - self._xr[0]) * nb).astype(np.int64), 0, nb - 1)
@@ -172,7 +173,7 @@ class PlaneDetector:
         if depth.ndim != 2 or depth.shape != (self.intrinsics.height, self.intrinsics.width):
             raise ValueError(f"depth must be ({self.intrinsics.height}, {self.intrinsics.width}), got {depth.shape}")
         z = depth[self._o::c.stride, self._o::c.stride].ravel()
-        valid = (z >= c.min_depth) & (z <= c.max_depth) & self._ray_ok
+        valid = (z >= self.depth_range[0]) & (z <= self.depth_range[1]) & self._ray_ok
         idx = np.flatnonzero(valid)
         w = 1.0 / (z[idx].astype(np.float64) * self._zscale[idx])
         return idx, w
@@ -275,39 +276,13 @@ class PlaneDetector:
             return planes
         idx, w = pts.idx, pts.w
         u = pts.y if not vertical else pts.x
-        nb, nw = c.n_image_bins, c.n_invdepth_bins
-        w0, w1 = self._wr
-        wb = ((w - w0) * (nw / (w1 - w0))).astype(np.int32)
-        np.minimum(wb, nw - 1, out=wb)
-        flat = ubin_all[idx] * nw + wb
-        cnt = np.bincount(flat, minlength=nb * nw).reshape(nb, nw).astype(np.float32)
-        # Per row/column: local maxima of the count summed over 3 inverse-depth bins.
-        c3 = _box3(cnt)
-        peak = c3 >= c.min_cell_count
-        peak[:, 1:] &= c3[:, 1:] >= c3[:, :-1]
-        peak[:, :-1] &= c3[:, :-1] > c3[:, 1:]
-        ci, cj = np.nonzero(peak)
-        if len(ci) == 0:
+        cells = self._histogram_cells(idx, w, u, ubin_all)
+        if cells is None:
             return planes
-        # Cell means of w and u over the same 3 bins.
-        sw = np.bincount(flat, weights=w, minlength=nb * nw).reshape(nb, nw)
-        su = np.bincount(flat, weights=u, minlength=nb * nw).reshape(nb, nw)
-        cw = c3[ci, cj].astype(np.float64)
-        jl, jr = np.maximum(cj - 1, 0), np.minimum(cj + 1, nw - 1)
-        cell_w = (sw[ci, cj] + sw[ci, jl] * (cj > 0) + sw[ci, jr] * (cj < nw - 1)) / cw
-        cell_u = (su[ci, cj] + su[ci, jl] * (cj > 0) + su[ci, jr] * (cj < nw - 1)) / cw
-        # Hough vote: each cell, for each orientation a, proposes log(1/d) = log w - log(u sin a + cos a).
-        den = (cell_u[:, None] * np.sin(angles)[None, :] + np.cos(angles)[None, :]).astype(np.float32)
-        ok = den > 0.05
-        lbin_w = math.log1p(c.inlier_rel_depth)
-        lo = math.log(1.0 / 30.0)
-        nd = int(math.ceil((math.log(1.0 / 0.1) - lo) / lbin_w))
-        logd = (np.log(cell_w).astype(np.float32) - lo)[:, None] - np.log(np.where(ok, den, 1.0))
-        dbin = (logd * np.float32(1.0 / lbin_w)).astype(np.int32)
-        ok &= (logd >= 0) & (dbin < nd)
+        cw, cell_w, cell_u = cells
+        vote_idx, lo, lbin_w, nd = self._hough_bins(cell_w, cell_u, angles)
         na = len(angles)
-        vote_idx = np.where(ok, np.arange(na, dtype=np.int32)[None, :] * nd + dbin, -1)
-        alive = np.ones(len(ci), bool)
+        alive = np.ones(len(cw), bool)
         pool = np.ones(len(idx), bool)  # raw points not yet explained
         tol = c.inlier_rel_depth
         failures = 0
@@ -348,6 +323,47 @@ class PlaneDetector:
             plane.inliers = idx[band[plane.inliers]]
             planes.append(plane)
         return planes
+
+    def _histogram_cells(self, idx, w, u, ubin_all):
+        """Peaks of the (image row or column, inverse depth) histogram: ``(count (C,),
+        mean w (C,), mean u (C,))`` of the cells, or None when no cell is a peak."""
+        c = self.config
+        nb, nw = c.n_image_bins, c.n_invdepth_bins
+        w0, w1 = self._wr
+        wb = ((w - w0) * (nw / (w1 - w0))).astype(np.int32)
+        np.minimum(wb, nw - 1, out=wb)
+        flat = ubin_all[idx] * nw + wb
+        cnt = np.bincount(flat, minlength=nb * nw).reshape(nb, nw).astype(np.float32)
+        # Per row/column: local maxima of the count summed over 3 inverse-depth bins.
+        c3 = _box3(cnt)
+        peak = c3 >= c.min_cell_count
+        peak[:, 1:] &= c3[:, 1:] >= c3[:, :-1]
+        peak[:, :-1] &= c3[:, :-1] > c3[:, 1:]
+        ci, cj = np.nonzero(peak)
+        if len(ci) == 0:
+            return None
+        # Cell means of w and u over the same 3 bins.
+        sw = np.bincount(flat, weights=w, minlength=nb * nw).reshape(nb, nw)
+        su = np.bincount(flat, weights=u, minlength=nb * nw).reshape(nb, nw)
+        cw = c3[ci, cj].astype(np.float64)
+        jl, jr = np.maximum(cj - 1, 0), np.minimum(cj + 1, nw - 1)
+        cell_w = (sw[ci, cj] + sw[ci, jl] * (cj > 0) + sw[ci, jr] * (cj < nw - 1)) / cw
+        cell_u = (su[ci, cj] + su[ci, jl] * (cj > 0) + su[ci, jr] * (cj < nw - 1)) / cw
+        return cw, cell_w, cell_u
+
+    def _hough_bins(self, cell_w, cell_u, angles):
+        """Hough vote: each cell, for each orientation a, proposes log(1/d) = log w - log(u sin a + cos a).
+        Returns ``(accumulator index (C, A) or -1, log(1/d) origin, bin width, bins)``."""
+        den = (cell_u[:, None] * np.sin(angles)[None, :] + np.cos(angles)[None, :]).astype(np.float32)
+        ok = den > 0.05
+        lbin_w = math.log1p(self.config.inlier_rel_depth)
+        lo = math.log(1.0 / 30.0)
+        nd = int(math.ceil((math.log(1.0 / 0.1) - lo) / lbin_w))
+        logd = (np.log(cell_w).astype(np.float32) - lo)[:, None] - np.log(np.where(ok, den, 1.0))
+        dbin = (logd * np.float32(1.0 / lbin_w)).astype(np.int32)
+        ok &= (logd >= 0) & (dbin < nd)
+        vote_idx = np.where(ok, np.arange(len(angles), dtype=np.int32)[None, :] * nd + dbin, -1)
+        return vote_idx, lo, lbin_w, nd
 
     def _fit(self, x, y, w, sel, tol, u) -> Plane | None:
         """Least-squares ``w = q . (x, y, 1)`` over ``sel``, refitted on its own inliers.

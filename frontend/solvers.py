@@ -1,6 +1,6 @@
 """Minimal solvers for planar motion between two levelled views, and ground-truth problems.
 
-Convention (pinned in :mod:`planar_vo.geometry`)
+Convention (pinned in :mod:`planar_vo.core.geometry`)
 ------------------------------------------------
 Levelled camera frame ``lev``: x right, y down along gravity, z forward. A planar motion
 maps view-1 points to view-2 points::
@@ -52,15 +52,14 @@ too few) give no solution; zero translation gives one solution per yaw flagged
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.geometry import rot_y, rot_x, rot_z, wrap_angle
+from planar_vo.core.geometry import rot_y, wrap_angle
 
 __all__ = [
     "PlanarMotion",
-    "PlanarProblem",
     "heading_of_direction",
     "manhattan_yaw_candidates",
     "yaw_from_manhattan_headings",
@@ -68,7 +67,6 @@ __all__ = [
     "relpose_upright_planar_homography_2pt",
     "homography_2pt_batch",
     "essential_from_planar",
-    "make_planar_problem",
 ]
 
 #: Below this |x1a - x1b|, |y2| or |t/d| the pair is degenerate (normalised units).
@@ -175,31 +173,8 @@ def homography_2pt_batch(x1a, x1b, x2a, x2b):
     (0 for pure rotation); ``ok`` (K,) False for degenerate or non-finite samples. Rows
     with ``ok`` False hold zeros, never NaN.
     """
-    xa, ya = x1a[:, 0], x1a[:, 1]
-    xb, yb = x1b[:, 0], x1b[:, 1]
-    ua, va = x2a[:, 0], x2a[:, 1]
-    ub, vb = x2b[:, 0], x2b[:, 1]
-    dx = xa - xb
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ok = (np.abs(dx) > _EPS) & (np.abs(va) > _EPS) & (np.abs(vb) > _EPS)
-        ok &= np.isfinite(dx) & np.isfinite(ya) & np.isfinite(yb) & np.isfinite(ua) & np.isfinite(ub)
-        # eq. 10 divided through by y2: per point h3 x1 + h4 = w, h1 x1 + h2 = x2 w, w = Z2/Z1
-        wa, wb = ya / va, yb / vb
-        h3 = (wa - wb) / dx
-        h4 = wa - h3 * xa
-        h1 = (ua * wa - ub * wb) / dx
-        h2 = ua * wa - h1 * xa
-        # eq. 13: A cos + B sin = C  ->  yaw = phi +- acos(C / r)
-        A = h1 + h4
-        B = h2 - h3
-        C = 1.0 + h1 * h4 - h2 * h3
-        r = np.hypot(A, B)
-        ok &= np.isfinite(r) & np.isfinite(C) & (r > _EPS)
-        phi = np.arctan2(B, A)
-        # |C / r| > 1 only through noise (double root for small t/d): clamp to the closest yaw
-        delta = np.arccos(np.clip(np.where(ok, C / np.where(ok, r, 1.0), 1.0), -1.0, 1.0))
-    yaw = np.stack([phi + delta, phi - delta], axis=1)
-    yaw = np.where(ok[:, None], yaw, 0.0)
+    xa = x1a[:, 0]
+    yaw, h1, h2, h3, h4, ok = _homography_yaws(x1a, x1b, x2a, x2b)
     c, s = np.cos(yaw), np.sin(yaw)
     z = lambda v: np.where(ok, v, 0.0)[:, None]  # noqa: E731 - keep NaN out of the algebra
     # M = H - R on the x-z block = tau n^T (rank one at a root of eq. 13)
@@ -230,6 +205,36 @@ def homography_2pt_batch(x1a, x1b, x2a, x2b):
     return wrap_angle(yaw), t, n, np.where(ok[:, None], tn, 0.0), ok
 
 
+def _homography_yaws(x1a, x1b, x2a, x2b):
+    """Both yaw roots (K, 2) of eq. 13-14 (zeros where degenerate), the homography entries
+    ``h1..h4`` (K,) and ``ok`` (K,) of :func:`homography_2pt_batch`."""
+    xa, ya = x1a[:, 0], x1a[:, 1]
+    xb, yb = x1b[:, 0], x1b[:, 1]
+    ua, va = x2a[:, 0], x2a[:, 1]
+    ub, vb = x2b[:, 0], x2b[:, 1]
+    dx = xa - xb
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ok = (np.abs(dx) > _EPS) & (np.abs(va) > _EPS) & (np.abs(vb) > _EPS)
+        ok &= np.isfinite(dx) & np.isfinite(ya) & np.isfinite(yb) & np.isfinite(ua) & np.isfinite(ub)
+        # eq. 10 divided through by y2: per point h3 x1 + h4 = w, h1 x1 + h2 = x2 w, w = Z2/Z1
+        wa, wb = ya / va, yb / vb
+        h3 = (wa - wb) / dx
+        h4 = wa - h3 * xa
+        h1 = (ua * wa - ub * wb) / dx
+        h2 = ua * wa - h1 * xa
+        # eq. 13: A cos + B sin = C  ->  yaw = phi +- acos(C / r)
+        A = h1 + h4
+        B = h2 - h3
+        C = 1.0 + h1 * h4 - h2 * h3
+        r = np.hypot(A, B)
+        ok &= np.isfinite(r) & np.isfinite(C) & (r > _EPS)
+        phi = np.arctan2(B, A)
+        # |C / r| > 1 only through noise (double root for small t/d): clamp to the closest yaw
+        delta = np.arccos(np.clip(np.where(ok, C / np.where(ok, r, 1.0), 1.0), -1.0, 1.0))
+    yaw = np.stack([phi + delta, phi - delta], axis=1)
+    return np.where(ok[:, None], yaw, 0.0), h1, h2, h3, h4, ok
+
+
 def relpose_upright_planar_homography_2pt(x1, x2) -> list[PlanarMotion]:
     """2-point planar-homography minimal solver (paper Sec. 2.2), every solution.
 
@@ -256,157 +261,3 @@ def relpose_upright_planar_homography_2pt(x1, x2) -> list[PlanarMotion]:
         for sgn in (1.0, -1.0):
             out.append(PlanarMotion(float(yaw[0, k]), sgn * t[0, k], sgn * n[0, k], float(tod[0, k])))
     return out
-
-
-# ------------------------------------------------------------ ground-truth generators
-
-@dataclass
-class PlanarProblem:
-    """A simulated two-view planar-motion problem with ground truth.
-
-    ``x1``, ``x2``: (N, 2) float64 normalised coordinates as the estimator sees them (after
-    levelling with the simulated tilt error, with image noise and outliers). ``P1``, ``P2``:
-    (N, 3) float64 levelled 3-D points as the depth sensor sees them (tilt error and depth
-    noise included; NaN where depth is missing). ``yaw`` (rad) and ``t`` (3,) metres: the
-    true motion ``X2 = R_y(yaw) X1 + t``; ``t_dir`` its unit direction. ``inliers``: (N,)
-    bool, False for injected outliers. ``tilt1``, ``tilt2``: (3, 3) the levelling errors
-    applied to view 1 / 2 (``X_seen = tilt @ X_true``). ``X1``: (N, 3) true view-1 points.
-    ``focal``: pixels. ``wall_heading1/2``: heading of a world wall normal in each view.
-    """
-
-    x1: np.ndarray
-    x2: np.ndarray
-    P1: np.ndarray
-    P2: np.ndarray
-    yaw: float
-    t: np.ndarray
-    inliers: np.ndarray
-    X1: np.ndarray
-    tilt1: np.ndarray = field(default_factory=lambda: np.eye(3))
-    tilt2: np.ndarray = field(default_factory=lambda: np.eye(3))
-    focal: float = 1000.0
-    wall_heading1: float = 0.0
-    wall_heading2: float = 0.0
-
-    @property
-    def t_dir(self) -> np.ndarray:
-        return self.t / np.linalg.norm(self.t)
-
-    @property
-    def R(self) -> np.ndarray:
-        return rot_y(self.yaw)
-
-
-def _tilt(pitch: float, roll: float) -> np.ndarray:
-    """Levelling error in ``lev``: pitch about x (right), roll about z (forward)."""
-    return rot_x(pitch) @ rot_z(roll)
-
-
-def make_planar_problem(
-    rng: np.random.Generator,
-    n: int = 500,
-    motion: str = "forward",
-    yaw_range_deg: float = 15.0,
-    noise_px: float = 0.0,
-    focal: float = 1000.0,
-    fov_deg: float = 50.0,
-    scene_depth: float = 1.0,
-    baseline: float = 0.15,
-    ground_fraction: float = 0.5,
-    camera_height: float = 0.2,
-    tilt_error: tuple[float, float] = (0.0, 0.0),
-    tilt_mode: str = "shared",
-    outlier_ratio: float = 0.0,
-    depth_noise: float = 0.0,
-    yaw: float | None = None,
-) -> PlanarProblem:
-    """Simulate the paper's synthetic scene (Sec. 3.1) and a planar motion through it.
-
-    ``n`` points visible in both views, ``ground_fraction`` of them on the floor
-    ``camera_height`` below the camera, the rest above it, depths uniform in
-    ``scene_depth * [0.5, 1.5]`` (mean ``scene_depth``), inside a ``fov_deg`` square field of
-    view. View 2's centre moves by ``baseline * scene_depth`` along view 1's z
-    (``"forward"``) or x (``"sideways"``) axis and turns by a yaw uniform in
-    ``+-yaw_range_deg`` (or ``yaw`` radians if given). ``noise_px``: Gaussian image noise
-    (pixels, at ``focal``). ``tilt_error``: (pitch, roll) standard deviations (rad) of the
-    levelling error, drawn once for both views (``"shared"``: a miscalibrated mount) or per
-    view (``"independent"``). ``outlier_ratio``: that fraction of view-2 observations
-    replaced by random image points. ``depth_noise``: relative depth noise (sigma = this * Z^2
-    / scene_depth) added to ``P1``/``P2`` along the viewing rays.
-    """
-    if motion not in ("forward", "sideways"):
-        raise ValueError(f"motion must be 'forward' or 'sideways', got {motion!r}")
-    if tilt_mode not in ("shared", "independent"):
-        raise ValueError(f"tilt_mode must be 'shared' or 'independent', got {tilt_mode!r}")
-    half = math.tan(math.radians(fov_deg) / 2.0)
-    if yaw is None:
-        yaw = math.radians(rng.uniform(-yaw_range_deg, yaw_range_deg))
-    R = rot_y(yaw)
-    b = baseline * scene_depth
-    c2 = np.array([0.0, 0.0, b]) if motion == "forward" else np.array([b, 0.0, 0.0])
-    t = -R @ c2  # camera-2 centre at c2 in view 1: X2 = R (X1 - c2)
-    h = camera_height * scene_depth
-    zlo, zhi = 0.5 * scene_depth, 1.5 * scene_depth
-
-    n_ground = int(round(ground_fraction * n))
-    pts: list[np.ndarray] = []
-    for count, ground in ((n_ground, True), (n - n_ground, False)):
-        got = 0
-        while got < count:
-            m = 4 * (count - got) + 16
-            Z = rng.uniform(zlo, zhi, m)
-            X = rng.uniform(-half, half, m) * Z
-            Y = np.full(m, h) if ground else rng.uniform(-half, half, m) * Z
-            P = np.stack([X, Y, Z], axis=1)
-            Q = P @ R.T + t
-            keep = (np.abs(Y / Z) <= half) & (Q[:, 2] > 0.1 * scene_depth)
-            keep &= (np.abs(Q[:, 0] / np.maximum(Q[:, 2], 1e-9)) <= half)
-            keep &= np.abs(Q[:, 1] / np.maximum(Q[:, 2], 1e-9)) <= half
-            if not ground:
-                keep &= Y < h - 1e-3 * scene_depth  # strictly above the floor
-            P = P[keep][: count - got]
-            pts.append(P)
-            got += len(P)
-    X1 = np.concatenate(pts)
-    X2 = X1 @ R.T + t
-
-    sp, sr = tilt_error
-    E1 = _tilt(rng.normal(0.0, sp) if sp > 0 else 0.0, rng.normal(0.0, sr) if sr > 0 else 0.0)
-    if tilt_mode == "shared":
-        E2 = E1
-    else:
-        E2 = _tilt(rng.normal(0.0, sp) if sp > 0 else 0.0, rng.normal(0.0, sr) if sr > 0 else 0.0)
-    S1 = X1 @ E1.T
-    S2 = X2 @ E2.T
-    x1 = S1[:, :2] / S1[:, 2:3]
-    x2 = S2[:, :2] / S2[:, 2:3]
-    if noise_px > 0:
-        x1 = x1 + rng.normal(0.0, noise_px / focal, x1.shape)
-        x2 = x2 + rng.normal(0.0, noise_px / focal, x2.shape)
-
-    inliers = np.ones(n, dtype=bool)
-    n_out = int(round(outlier_ratio * n))
-    if n_out:
-        idx = rng.choice(n, n_out, replace=False)
-        inliers[idx] = False
-        x2[idx] = rng.uniform(-half, half, (n_out, 2))
-
-    def sensed(S, x):
-        Z = S[:, 2]
-        if depth_noise > 0:
-            Z = Z + rng.normal(0.0, 1.0, len(Z)) * depth_noise * Z ** 2 / scene_depth
-        return np.column_stack([x * Z[:, None], Z])
-
-    P1 = sensed(S1, x1)
-    P2 = sensed(S2, x2)
-    if n_out:
-        P2[~inliers, 2] = rng.uniform(zlo, zhi, n_out)
-        P2[~inliers, :2] = x2[~inliers] * P2[~inliers, 2:3]
-
-    # a wall normal (world) at a random heading, seen from both views
-    wall = rot_y(rng.uniform(-np.pi, np.pi)) @ np.array([0.0, 0.0, 1.0])
-    return PlanarProblem(
-        x1=x1, x2=x2, P1=P1, P2=P2, yaw=float(yaw), t=t, inliers=inliers, X1=X1,
-        tilt1=E1, tilt2=E2, focal=focal,
-        wall_heading1=heading_of_direction(wall), wall_heading2=heading_of_direction(R @ wall),
-    )

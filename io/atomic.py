@@ -12,7 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError
 
 
 def _temp_path(path: Path) -> Path:

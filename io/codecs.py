@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError
 
 COLOR_ENCODINGS = ("jpeg", "png", "bgr8", "rgb8", "mono8")
 DEPTH_ENCODINGS = ("png", "compressedDepth", "16UC1", "32FC1")

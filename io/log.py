@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,8 +9,9 @@ from typing import Iterator
 
 import numpy as np
 
-from planar_vo.errors import InputError
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import mount_angles
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
 #: Frames whose depth is decoded by ``summary()`` to judge depth validity.
 DEPTH_SAMPLES = 12
@@ -64,7 +64,6 @@ class LogSummary:
         return self.depth_frames_sampled > 0 and not self.depth_valid_fraction
 
     def __str__(self) -> str:
-        from planar_vo.geometry import mount_angles
         lines = [f"log:          {self.path} ({self.format})",
                  f"colour:       {self.color_topic}  [{self.color_encoding}]  {self.color_messages} msgs",
                  f"depth:        {self.depth_topic}  [{self.depth_encoding}]  {self.depth_messages} msgs",
@@ -176,45 +175,3 @@ def check_range(start: int, stop: int | None, stride: int) -> None:
 
 def depth_valid_fraction(depth: np.ndarray) -> float:
     return float(np.count_nonzero(depth)) / depth.size if depth.size else 0.0
-
-
-def open_log(path, *, color_topic: str | None = None, depth_topic: str | None = None,
-             info_topic: str | None = None, intrinsics: CameraIntrinsics | None = None,
-             sync_tolerance: float = 0.02) -> RGBDLog:
-    """Open an RGB-D log for streaming: an MCAP file (ROS 2, ROS 1 or Foxglove profile), a ROS 1
-    ``.bag``, a rosbag2 folder (sqlite3 or mcap storage; the folder or its ``metadata.yaml``)
-    or a TUM RGB-D folder.
-
-    ``intrinsics`` overrides any calibration found in the log. ``sync_tolerance``:
-    largest colour/depth stamp difference (s) accepted when pairing.
-    """
-    from planar_vo.io.rosbags_reader import is_rosbag1, open_ros_log, rosbag2_folder
-
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file or folder")
-    if not sync_tolerance >= 0:
-        raise InputError(f"--sync-tolerance must be >= 0 s, got {sync_tolerance}")
-    if p.is_file() and not os.access(p, os.R_OK):
-        raise InputError(f"{p}: file is not readable (check its permissions)")
-    topics = {"color_topic": color_topic, "depth_topic": depth_topic, "info_topic": info_topic}
-    folder = rosbag2_folder(p)
-    if folder is not None or (p.is_file() and is_rosbag1(p)):
-        return open_ros_log(folder or p, **topics, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
-    if p.is_dir():
-        _reject_rosbag2_without_metadata(p)
-        if any(t is not None for t in topics.values()):
-            raise InputError(f"{p}: --color-topic/--depth-topic/--info-topic apply to MCAP logs and bags, "
-                             "not TUM folders")
-        from planar_vo.io.tum import TumRGBDLog
-        return TumRGBDLog(p, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
-    from planar_vo.io.mcap_reader import McapRGBDLog
-    return McapRGBDLog(p, **topics, intrinsics=intrinsics, sync_tolerance=sync_tolerance)
-
-
-def _reject_rosbag2_without_metadata(folder: Path) -> None:
-    """A folder of ``.db3`` / ``.mcap`` files but no metadata.yaml: a rosbag2 folder missing it."""
-    stores = sorted(f.name for f in folder.iterdir() if f.suffix in (".db3", ".mcap"))
-    if stores and not (folder / "rgb.txt").exists():
-        raise InputError(f"{folder}: looks like a rosbag2 folder ({', '.join(stores[:3])}) but has no "
-                         "metadata.yaml; restore it (`ros2 bag reindex FOLDER`) or give the .mcap file itself")

@@ -8,7 +8,7 @@ header stamp (:mod:`planar_vo.io.pairing`) and only the selected frames are deco
 Damage is contained: a message that fails to decode is skipped and listed in
 ``stats['corrupt']``; an unreadable chunk is skipped when the index lets reading resume
 after it; a log cut mid-file yields every readable frame and then raises
-:class:`~planar_vo.errors.PartialResult` naming the byte offset where it stops.
+:class:`~planar_vo.core.errors.PartialResult` naming the byte offset where it stops.
 """
 from __future__ import annotations
 
@@ -21,8 +21,15 @@ from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Chunk, Header, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
 
-from planar_vo.errors import InputError, PartialResult
+from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.io import messages as m
 from planar_vo.io.codecs import (DecodeError, decode_compressed_color, decode_compressed_depth,
                                  decode_raw_color, decode_raw_depth)
@@ -31,7 +38,7 @@ from planar_vo.io.log import (DEPTH_SAMPLES, INTRINSICS_FLAGS, LogSummary, RGBDL
 from planar_vo.io.pairing import COLOR, DEPTH, Pair, StampPairer, Unpaired
 from planar_vo.io.rosmsg import Ros1DecoderFactory
 from planar_vo.io.topics import choose_topics
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _ROSBAG1_MAGIC = b"#ROSBAG"
@@ -112,11 +119,6 @@ class McapRGBDLog(RGBDLog):
 
     # ------------------------------------------------------------------ opening
     def _open(self, color_topic, depth_topic, info_topic) -> None:
-        from mcap.records import Header
-        from mcap.stream_reader import StreamReader
-        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
-        from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
-
         self.size = os.fstat(self._file.fileno()).st_size
         head = self._file.read(8)
         if head.startswith(_ROSBAG1_MAGIC):
@@ -183,7 +185,6 @@ class McapRGBDLog(RGBDLog):
         self._gt_cache: tuple | None = None
 
     def _read_summary(self):
-        from mcap.reader import SeekingReader
         try:
             self._file.seek(0)
             return SeekingReader(self._file).get_summary()
@@ -209,9 +210,6 @@ class McapRGBDLog(RGBDLog):
         if not self.indexed:
             yield from self._iter_linear(ids, corrupt=corrupt, stop_out=stop)
             return
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk, Message
-        from mcap.stream_reader import breakup_chunk
 
         chunks = [c for c in self._chunk_indexes if ids & set(c.message_index_offsets)]
         heap: list = []
@@ -240,11 +238,6 @@ class McapRGBDLog(RGBDLog):
     def _iter_linear(self, ids, corrupt: list | None = None, scan: bool = False,
                      stop_out: list | None = None) -> Iterator[tuple]:
         """Records in file order; for logs without a usable index. ``scan``: learn channels."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import breakup_chunk
-
         f = self._file
         offset = len(MCAP_MAGIC)
         stop = None

@@ -15,7 +15,7 @@ from planar_vo.io import messages as m
 from planar_vo.io import ros2_msgdefs
 from planar_vo.io.atomic import AtomicFile
 from planar_vo.io.codecs import COLOR_ENCODINGS, DEPTH_ENCODINGS, encode_color, encode_depth
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 PROFILES = ("ros2", "foxglove")
 CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planar_vo.geometry import matrix_from_pose7, pose7_from_matrix
+from planar_vo.core.geometry import matrix_from_pose7, pose7_from_matrix
 from planar_vo.io.codecs import EncodedImage
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 # Schema names, normalised by :func:`schema_kind`.
 IMAGE, COMPRESSED, CAMERA_INFO, TRANSFORMS, POSE, POSES = (
@@ -282,9 +282,3 @@ def parse_transforms(msg) -> list[tuple[float, str, str, np.ndarray]]:
 def parse_pose(msg) -> tuple[float, str, np.ndarray]:
     """PoseStamped / PoseInFrame -> ``(stamp, frame_id, T (4, 4))``."""
     return _stamp_of(msg), _frame_of(msg), _matrix(msg.pose.position, msg.pose.orientation)
-
-
-def parse_poses(msg) -> tuple[float, str, np.ndarray]:
-    """PosesInFrame -> ``(stamp, frame_id, T (N, 4, 4))``."""
-    T = np.array([_matrix(p.position, p.orientation) for p in msg.poses]).reshape(-1, 4, 4)
-    return _stamp_of(msg), msg.frame_id, T

@@ -10,7 +10,7 @@ one code path for every container. Memory stays flat: messages are read one at a
 (a ROS 1 bag keeps one decompressed chunk, a rosbag2 folder one row or chunk).
 
 A container that breaks off mid-read (a cut ``.db3`` or ``.mcap``) yields what was
-readable, then raises :class:`~planar_vo.errors.PartialResult`; one that cannot be
+readable, then raises :class:`~planar_vo.core.errors.PartialResult`; one that cannot be
 opened at all (a ROS 1 bag cut short has no index) is an :class:`InputError`.
 """
 from __future__ import annotations
@@ -19,11 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.io.log import RGBDLog
 from planar_vo.io.mcap_reader import McapRGBDLog, _fmt_stamp, _ns_to_s
 from planar_vo.io.rosmsg import CDR, ROS1, typestore
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 ROSBAG1_MAGIC = b"#ROSBAG"
 
@@ -167,7 +167,6 @@ class RosbagsRGBDLog(McapRGBDLog):
         return self._reader.deserialize(message.data, schema.name)
 
     def _raise_cut(self, stop, yielded: int, paired: int) -> None:
-        from planar_vo.errors import PartialResult
         where = stop.where(self.size)
         if yielded == 0 and paired == 0:
             raise InputError(f"{self.path}: no readable frame; the {self.container} is damaged ({where})")

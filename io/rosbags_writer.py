@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 
+from planar_vo.io import messages as m
 from planar_vo.io import rosmsg
 from planar_vo.io.atomic import AtomicFile, AtomicTree
 from planar_vo.io.mcap_writer import RGBDLogWriter
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 #: Containers a log can be written in. ``mcap`` is the MCAP writer's own (``profile``
 #: ros2 or foxglove); the rest are ROS containers with ROS 1 or ROS 2 messages.
@@ -93,7 +94,6 @@ class RosLogWriter(RGBDLogWriter):
         return conn
 
     def _put(self, topic: str, stamp: float, ros2_type: str, ros2_msg, fox_msg_fn) -> None:  # noqa: ARG002
-        from planar_vo.io import messages as m
         t = m.stamp_to_ns(stamp)
         conn = self._connection(topic, ros2_type)
         data = rosmsg.serialize(self.encoding, ros2_type, ros2_msg())

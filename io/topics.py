@@ -11,7 +11,7 @@ from __future__ import annotations
 import posixpath
 import re
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError
 
 _RES_RANK = {"qhd": 0, "hd": 1, "sd": 2}
 _NOT_COLOR = {"ir", "infra", "infra1", "infra2", "disparity", "mask", "segmentation", "label",

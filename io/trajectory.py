@@ -14,14 +14,41 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.errors import InputError
-from planar_vo.geometry import matrix_from_pose7, pose7_from_matrix
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import matrix_from_pose7, pose7_from_matrix
 from planar_vo.io import messages as m
+from planar_vo.io import rosmsg
 from planar_vo.io.atomic import atomic_path, write_text_atomic
-from planar_vo.io.types import Trajectory
+from planar_vo.core.types import Trajectory
 
 POSES_METADATA = "planar_vo.trajectories"
 _TOPIC = re.compile(r"^/planar_vo/(?P<name>.+)/(?P<kind>pose|odom|path)$")
+
+
+def associate_stamps(stamps_a: np.ndarray, stamps_b: np.ndarray, max_dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(ia, ib)`` matching each stamp of ``a`` to the nearest of ``b`` within ``max_dt`` s.
+
+    Each ``b`` stamp is used at most once (the closest ``a`` wins); both arrays sorted ascending.
+    """
+    a = np.asarray(stamps_a, dtype=float)
+    b = np.asarray(stamps_b, dtype=float)
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    j = np.clip(np.searchsorted(b, a), 1, len(b) - 1) if len(b) > 1 else np.zeros(len(a), int)
+    if len(b) > 1:
+        left_better = np.abs(a - b[j - 1]) <= np.abs(a - b[j])
+        j = np.where(left_better, j - 1, j)
+    dt = np.abs(a - b[j])
+    ok = dt <= max_dt
+    ia, ib, dt = np.nonzero(ok)[0], j[ok], dt[ok]
+    # keep the closest a for every b
+    order = np.lexsort((dt, ib))
+    ia, ib = ia[order], ib[order]
+    first = np.ones(len(ib), bool)
+    first[1:] = ib[1:] != ib[:-1]
+    ia, ib = ia[first], ib[first]
+    o = np.argsort(ia)
+    return ia[o], ib[o]
 
 
 # ------------------------------------------------------------------------------ TUM
@@ -158,7 +185,6 @@ def _write_poses_ros2(path: Path, events: list) -> None:
     ``ros2 bag record -s mcap`` writes one, atomically; zstd chunks as for the Foxglove format."""
     from mcap.writer import CompressionType, Writer
 
-    from planar_vo.io import rosmsg
     store = rosmsg.typestore(rosmsg.CDR)
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)

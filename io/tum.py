@@ -14,12 +14,12 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from planar_vo.errors import InputError
+from planar_vo.core.errors import InputError
 from planar_vo.io.log import (DEPTH_SAMPLES, INTRINSICS_FLAGS, LogSummary, RGBDLog, _empty_stats,
                               check_range, depth_valid_fraction)
 from planar_vo.io.pairing import COLOR, DEPTH, StampPairer, Unpaired
 from planar_vo.io.trajectory import read_tum_trajectory
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame, Trajectory
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame, Trajectory
 
 #: Depth PNG units per metre.
 TUM_DEPTH_SCALE = 5000.0

@@ -12,7 +12,7 @@ import importlib
 import sys
 
 from planar_vo import __version__
-from planar_vo.errors import PlanarVOError
+from planar_vo.core.errors import PlanarVOError
 
 #: name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -2,6 +2,8 @@
 
 A YAML file (``--config``) may set any subset of these keys; command-line flags
 override the file; the resolved result is written to ``config.yaml`` in every run folder.
+Each setting lives in one place: the camera mount in ``frontend.levelling``, the depth
+range in ``frontend``; ``tests/test_config_fields.py`` checks that every field is read.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import yaml
 
 from planar_vo.backend.config import BackendConfig
 from planar_vo.configtools import from_dict, merge, to_dict
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 from planar_vo.frontend.config import FrontendConfig
 
 
@@ -37,24 +39,11 @@ class InputConfig:
     def __post_init__(self) -> None:
         given = [v is not None for v in (self.fx, self.fy, self.cx, self.cy)]
         if any(given) and not all(given):
-            raise ValueError("intrinsics need all of fx, fy, cx, cy (--fx --fy --cx --cy)")
+            raise ConfigError("intrinsics need all of fx, fy, cx, cy (--fx --fy --cx --cy)")
         if self.stride < 1:
-            raise ValueError(f"stride must be >= 1, got {self.stride}")
+            raise ConfigError(f"config key 'input.stride' must be >= 1, got {self.stride}")
         if self.start < 0 or (self.stop is not None and self.stop <= self.start):
-            raise ValueError(f"bad frame range start={self.start} stop={self.stop}")
-
-
-@dataclass
-class MountConfig:
-    """Camera mount override (REP 103 angles). Empty: use /tf_static, else estimate from the floor."""
-
-    pitch_deg: Optional[float] = None
-    roll_deg: Optional[float] = None
-    height_m: Optional[float] = None
-
-    def __post_init__(self) -> None:
-        if (self.pitch_deg is None) != (self.roll_deg is None):
-            raise ValueError("mount tilt needs both pitch_deg and roll_deg (--pitch-deg --roll-deg)")
+            raise ConfigError(f"config keys 'input.start'/'input.stop': bad frame range start={self.start} stop={self.stop}")
 
 
 @dataclass
@@ -69,7 +58,6 @@ class OutputConfig:
 @dataclass
 class RunConfig:
     input: InputConfig = field(default_factory=InputConfig)
-    mount: MountConfig = field(default_factory=MountConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     #: ``batch``: Levenberg-Marquardt over the whole run; ``online``: iSAM2 per frame.

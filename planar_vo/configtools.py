@@ -11,7 +11,7 @@ import types
 import typing
 from typing import Any, TypeVar
 
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 T = TypeVar("T")
 

@@ -5,7 +5,11 @@ import json
 import math
 from pathlib import Path
 
-from planar_vo.errors import InputError
+from evo.tools import file_interface
+
+from planar_vo.core.errors import InputError
+from planar_vo.io import open_log
+from planar_vo.io.trajectory import read_tum_trajectory
 from planar_vo.metrics import planarity, trajectory_errors
 
 ROWS = [
@@ -22,9 +26,6 @@ ROWS = [
 
 def load_ground_truth(path: str | Path):
     """Ground truth from a TUM file or from an MCAP log that carries ``/ground_truth``."""
-    from planar_vo.io import open_log
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: ground-truth file not found; pass a TUM trajectory or an MCAP with /ground_truth to --gt")
@@ -40,9 +41,6 @@ def load_ground_truth(path: str | Path):
 def ground_truth_for_log(log_path: str | Path, log=None):
     """``(Trajectory, source)`` carried by a log (``/ground_truth``) or in ``LOG.gt.tum`` beside
     it, else ``(None, None)``. ``log``: the already open RGBDLog, if any."""
-    from planar_vo.io import open_log
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     log_path = Path(log_path)
     try:
         if log is None and log_path.exists():
@@ -70,8 +68,6 @@ def find_ground_truth(run_dir: Path):
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     """Errors of ``raw.tum`` and ``smoothed.tum`` in ``run_dir`` against ``gt`` (a Trajectory)."""
-    from planar_vo.io.trajectory import read_tum_trajectory
-
     run_dir = Path(run_dir)
     if not (run_dir / "smoothed.tum").exists():
         raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
@@ -81,8 +77,9 @@ def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
         raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
     result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
     for name in ("raw", "smoothed"):
-        est = read_tum_trajectory(run_dir / f"{name}.tum")
-        result[name] = trajectory_errors(est.stamps, est.poses, gt.stamps, gt.poses, max_dt=max_dt).as_dict()
+        est = file_interface.read_tum_trajectory_file(run_dir / f"{name}.tum")
+        result[name] = trajectory_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses,
+                                         max_dt=max_dt).as_dict()
     return result
 
 
@@ -94,6 +91,10 @@ def format_table(result: dict) -> str:
             v = result[name][key]
             cells.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
         lines.append(f"{label:<30}{cells[0]:>14}{cells[1]:>14}")
+    for name in ("raw", "smoothed"):
+        if result[name].get("ate_alignment") == "first_pose":
+            lines.append(f"{name}: ATE after aligning the first poses (the ground truth is a straight line, "
+                         "so the SE(3) alignment is undetermined)")
     g = result["ground_truth"]
     lines.append(f"ground truth: {g['poses']} poses, height range {g['height_range_m']:.3f} m, "
                  f"tilt range {g['tilt_range_deg']:.2f} deg")

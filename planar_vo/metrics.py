@@ -1,83 +1,46 @@
-"""Trajectory accuracy metrics (pure: arrays in, numbers out).
+"""Trajectory accuracy metrics: ATE and RPE from evo, the paper's figures on top.
 
 All trajectories are camera optical-frame poses ``T_world_cam`` (N, 4, 4) in a z-up
-world. Estimates and ground truth are associated by timestamp first.
+world. Estimates and ground truth are associated by timestamp first (``evo.core.sync``).
 
-* ATE RMSE: position RMSE after the least-squares SE(3) alignment (Umeyama, no scale).
-* RPE per metre: for every pose pair ``delta`` metres of ground-truth path apart, the
-  relative-motion error; translation as a fraction of ``delta`` (m/m), rotation in deg/m.
+* ATE RMSE: position RMSE after the least-squares SE(3) alignment (Umeyama, no scale) --
+  ``evo_ape tum GT EST -a --t_max_diff MAX_DT``; on a straight ground-truth path, where that
+  alignment is undetermined, after aligning the first poses (``--align_origin``).
+* RPE per metre: for every ground-truth pose, the pose :data:`RPE_DELTA_M` metres of
+  ground-truth path further on (within 10 %), the relative-motion error; translation in
+  m per metre, rotation in deg per metre -- ``evo_rpe tum GT EST -r trans_part|angle_deg
+  -d 1 -u m --all_pairs --pairs_from_reference --t_max_diff MAX_DT`` (mean, divided by the delta).
 * End-point drift: distance between the final positions after aligning the first poses,
   as a percentage of the ground-truth path length (the paper's metric, Sec. 3.2).
 * Final yaw error: heading difference (about world z) of the final poses after the same
   first-pose alignment, in degrees.
+
+evo is the tool readers of trajectory figures use, so its numbers are taken as they are:
+``tests/test_evaluate_evo.py`` checks that ``planar-vo evaluate`` agrees with ``evo_ape`` and
+``evo_rpe`` run on the same files.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from evo.core import metrics, sync
+from evo.core.filters import FilterException
+from evo.core.geometry import GeometryException
+from evo.core.trajectory import PoseTrajectory3D
 
-from planar_vo.geometry import wrap_angle, yaw_of_cam
+from planar_vo.core.geometry import wrap_angle, yaw_of_cam
 
-
-def associate(stamps_a: np.ndarray, stamps_b: np.ndarray, max_dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(ia, ib)`` matching each stamp of ``a`` to the nearest of ``b`` within ``max_dt`` s.
-
-    Each ``b`` stamp is used at most once (the closest ``a`` wins); both arrays sorted ascending.
-    """
-    a = np.asarray(stamps_a, dtype=float)
-    b = np.asarray(stamps_b, dtype=float)
-    if len(a) == 0 or len(b) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    j = np.clip(np.searchsorted(b, a), 1, len(b) - 1) if len(b) > 1 else np.zeros(len(a), int)
-    if len(b) > 1:
-        left_better = np.abs(a - b[j - 1]) <= np.abs(a - b[j])
-        j = np.where(left_better, j - 1, j)
-    dt = np.abs(a - b[j])
-    ok = dt <= max_dt
-    ia, ib, dt = np.nonzero(ok)[0], j[ok], dt[ok]
-    # keep the closest a for every b
-    order = np.lexsort((dt, ib))
-    ia, ib = ia[order], ib[order]
-    first = np.ones(len(ib), bool)
-    first[1:] = ib[1:] != ib[:-1]
-    ia, ib = ia[first], ib[first]
-    o = np.argsort(ia)
-    return ia[o], ib[o]
-
-
-def umeyama_se3(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(4, 4) rigid transform ``T`` minimising ``sum |dst - T src|^2`` for (N, 3) point sets."""
-    src = np.asarray(src, dtype=float)
-    dst = np.asarray(dst, dtype=float)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
-        raise ValueError(f"umeyama_se3: expected two (N, 3) arrays, got {src.shape} and {dst.shape}")
-    T = np.eye(4)
-    if len(src) == 0:
-        return T
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    if len(src) < 3:
-        T[:3, 3] = mu_d - mu_s
-        return T
-    C = (dst - mu_d).T @ (src - mu_s) / len(src)
-    U, _, Vt = np.linalg.svd(C)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    T[:3, :3] = R
-    T[:3, 3] = mu_d - R @ mu_s
-    return T
+#: RPE segment length along the ground-truth path (m) and its relative tolerance.
+RPE_DELTA_M = 1.0
+RPE_DELTA_TOL = 0.1
 
 
 def path_length(positions: np.ndarray) -> float:
     p = np.asarray(positions, dtype=float)
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
-
-
-def _rot_angle(R: np.ndarray) -> float:
-    return math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0)))
 
 
 @dataclass
@@ -92,57 +55,78 @@ class TrajectoryErrors:
     endpoint_drift_m: float
     endpoint_drift_pct: float
     final_yaw_error_deg: float
+    #: how the estimate was aligned for the ATE (:func:`ate_rmse`)
+    ate_alignment: str = "se3"
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
+def evo_trajectory(stamps, poses) -> PoseTrajectory3D:
+    """An evo trajectory from (N,) stamps in s and (N, 4, 4) poses."""
+    return PoseTrajectory3D(poses_se3=list(np.asarray(poses, dtype=float)),
+                            timestamps=np.asarray(stamps, dtype=float))
+
+
+def ate_rmse(gt: PoseTrajectory3D, est: PoseTrajectory3D) -> tuple[float, str]:
+    """Position RMSE (m) of ``est`` after alignment to ``gt`` (both synchronised), and the alignment.
+
+    ``"se3"``: Umeyama SE(3), as ``evo_ape -a``. When the ground-truth positions lie on a line
+    (a robot driving straight) the rotation about that line is undetermined and evo refuses
+    Umeyama; then ``"first_pose"``: the first poses made equal, as ``evo_ape --align_origin``.
+    """
+    aligned = copy.deepcopy(est)
+    try:
+        aligned.align(gt, correct_scale=False)
+        how = "se3"
+    except GeometryException:
+        aligned = copy.deepcopy(est)
+        aligned.align_origin(gt)
+        how = "first_pose"
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((gt, aligned))
+    return float(ape.get_statistic(metrics.StatisticsType.rmse)), how
+
+
+def rpe_per_metre(gt: PoseTrajectory3D, est: PoseTrajectory3D, relation: metrics.PoseRelation,
+                  delta_m: float = RPE_DELTA_M) -> float:
+    """Mean relative error over ``delta_m`` metres of ground-truth path, per metre; nan if no pair."""
+    rpe = metrics.RPE(relation, delta=delta_m, delta_unit=metrics.Unit.meters, rel_delta_tol=RPE_DELTA_TOL,
+                      all_pairs=True, pairs_from_reference=True)
+    try:
+        rpe.process_data((gt, est))
+    except (metrics.MetricsException, FilterException):  # no pair of poses delta_m apart
+        return float("nan")
+    return float(rpe.get_statistic(metrics.StatisticsType.mean)) / delta_m
+
+
 def trajectory_errors(est_stamps, est_poses, gt_stamps, gt_poses, *, max_dt: float = 0.02,
-                      rpe_delta_m: float = 1.0) -> TrajectoryErrors:
+                      rpe_delta_m: float = RPE_DELTA_M) -> TrajectoryErrors:
     """Compare ``est_poses`` (N, 4, 4) to ``gt_poses`` (M, 4, 4); see the module docstring."""
-    est_poses = np.asarray(est_poses, dtype=float)
-    gt_poses = np.asarray(gt_poses, dtype=float)
-    ia, ib = associate(est_stamps, gt_stamps, max_dt)
     nan = float("nan")
-    if len(ia) < 2:
-        return TrajectoryErrors(len(ia), nan, nan, nan, nan, nan, nan, nan)
-    E, G = est_poses[ia], gt_poses[ib]
-    pe, pg = E[:, :3, 3], G[:, :3, 3]
-    length = path_length(pg)
-
-    T = umeyama_se3(pe, pg)
-    aligned = (T[:3, :3] @ pe.T).T + T[:3, 3]
-    ate = float(np.sqrt(np.mean(np.sum((aligned - pg) ** 2, axis=1))))
-
-    # RPE over segments of ~rpe_delta_m metres of ground-truth path.
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pg, axis=0), axis=1))])
-    t_err, r_err = [], []
-    for i in range(len(cum)):
-        j = int(np.searchsorted(cum, cum[i] + rpe_delta_m))
-        if j >= len(cum):
-            break
-        dg = np.linalg.inv(G[i]) @ G[j]
-        de = np.linalg.inv(E[i]) @ E[j]
-        err = np.linalg.inv(dg) @ de
-        seg = cum[j] - cum[i]
-        t_err.append(np.linalg.norm(err[:3, 3]) / seg)
-        r_err.append(math.degrees(_rot_angle(err[:3, :3])) / seg)
-    rpe_t = float(np.mean(t_err)) if t_err else nan
-    rpe_r = float(np.mean(r_err)) if r_err else nan
-
-    A = G[0] @ np.linalg.inv(E[0])  # first-pose alignment
+    try:
+        gt, est = sync.associate_trajectories(evo_trajectory(gt_stamps, gt_poses),
+                                              evo_trajectory(est_stamps, est_poses), max_diff=max_dt)
+    except sync.SyncException:  # no stamp in common
+        return TrajectoryErrors(0, nan, nan, nan, nan, nan, nan, nan)
+    if est.num_poses < 2:
+        return TrajectoryErrors(est.num_poses, nan, nan, nan, nan, nan, nan, nan)
+    E, G = np.asarray(est.poses_se3), np.asarray(gt.poses_se3)
+    length = path_length(G[:, :3, 3])
+    A = G[0] @ np.linalg.inv(E[0])  # first-pose alignment (the paper's end-point drift)
     end = A @ E[-1]
     drift = float(np.linalg.norm(end[:3, 3] - G[-1][:3, 3]))
-    yaw_err = math.degrees(float(wrap_angle(yaw_of_cam(end) - yaw_of_cam(G[-1]))))
+    ate, alignment = ate_rmse(gt, est)
     return TrajectoryErrors(
-        matched=int(len(ia)),
+        matched=int(est.num_poses),
         path_length_m=length,
         ate_rmse_m=ate,
-        rpe_trans_per_m=rpe_t,
-        rpe_rot_deg_per_m=rpe_r,
+        ate_alignment=alignment,
+        rpe_trans_per_m=rpe_per_metre(gt, est, metrics.PoseRelation.translation_part, rpe_delta_m),
+        rpe_rot_deg_per_m=rpe_per_metre(gt, est, metrics.PoseRelation.rotation_angle_deg, rpe_delta_m),
         endpoint_drift_m=drift,
         endpoint_drift_pct=100.0 * drift / length if length > 0 else nan,
-        final_yaw_error_deg=yaw_err,
+        final_yaw_error_deg=math.degrees(float(wrap_angle(yaw_of_cam(end) - yaw_of_cam(G[-1])))),
     )
 
 

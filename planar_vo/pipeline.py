@@ -19,20 +19,28 @@ still written and the returned report says ``partial``.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import math
-import sys
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
+from threadpoolctl import threadpool_limits
 
+from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
 from planar_vo.config import RunConfig, dump_config
-from planar_vo.errors import InputError, PartialResult
-from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, mount_rotation, se2_to_matrix
+from planar_vo.core.errors import InputError, PartialResult
+from planar_vo.core.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
+from planar_vo.core.types import Trajectory
+from planar_vo.frontend.odometry import PlanarOdometry
+from planar_vo.io.atomic import write_text_atomic
+from planar_vo.io.cliargs import open_log_with_overrides
+from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write_poses_mcap, write_tum_trajectory
+from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
 
@@ -46,104 +54,16 @@ class RunResult:
     files: dict = field(default_factory=dict)
 
 
-
-
-#: ``(set, get)`` thread-count entry points of the OpenBLAS builds found in the wild: the
-#: plain library (OpenCV's wheels) and the symbol-prefixed one of numpy/scipy wheels.
-_OPENBLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
-                     ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
-                     ("openblas_set_num_threads64_", "openblas_get_num_threads64_"))
-
-
-def _loaded_openblas() -> list[tuple]:
-    """``(set, get)`` ctypes functions of every OpenBLAS loaded in this process (Linux)."""
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.rsplit("/", 1)[-1].lower()})
-    except OSError:  # not Linux: leave the libraries as they are
-        return []
-    found = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)  # already mapped: this only takes a handle
-        except OSError:
-            continue
-        for set_name, get_name in _OPENBLAS_SYMBOLS:
-            if hasattr(lib, set_name) and hasattr(lib, get_name):
-                setter, getter = getattr(lib, set_name), getattr(lib, get_name)
-                setter.argtypes, setter.restype, getter.restype = [ctypes.c_int], None, ctypes.c_int
-                found.append((setter, getter))
-                break
-    return found
-
-
-@contextlib.contextmanager
-def blas_threads(n: int = 1):
-    """Run the body with at most ``n`` OpenBLAS threads, restoring the previous counts.
-
-    The front-end's BLAS calls are all small (dot products over ~10^4 samples, 3x3
-    solves): threads cannot pay for their start-up there, and idle OpenBLAS workers
-    spin, competing with the decoding thread for the cores. On a loaded 2-core machine
-    the default (one BLAS thread per core) made the plane detector ~10x slower.
-    """
-    if "numpy" not in sys.modules:
-        import numpy  # noqa: F401 - load its BLAS so that it can be limited
-    libs = _loaded_openblas()
-    before = [get() for _, get in libs]
-    for set_, _ in libs:
-        set_(n)
-    try:
-        yield
-    finally:
-        for (set_, _), k in zip(libs, before):
-            set_(k)
-
-
 def open_input(log_path: str | Path, config: RunConfig):
-    """Open a log (MCAP, bag, rosbag2 or TUM folder) with the topic/intrinsics overrides of ``config``."""
-    from planar_vo.io import open_log
-    from planar_vo.io.types import CameraIntrinsics
-
+    """Open an MCAP log or TUM folder with the topic/intrinsics overrides of ``config``."""
     c = config.input
-    log = open_log(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
-                   info_topic=c.info_topic, sync_tolerance=c.sync_tolerance_s)
-    if c.fx is not None:
-        try:
-            w, h = log.image_size  # the override is for the images as they are
-            log.set_intrinsics(CameraIntrinsics(w, h, c.fx, c.fy, c.cx, c.cy))
-        except BaseException:
-            log.close()
-            raise
-    return log
-
-
-def resolve_mount(log_mount, config: RunConfig):
-    """The mount to use: config tilt (with the log's or configured height) > log's /tf_static > None."""
-    from planar_vo.io.types import Mount
-
-    m = config.mount
-    if m.pitch_deg is None:
-        if log_mount is not None and m.height_m is not None:
-            T = np.array(log_mount.T_base_cam, dtype=float)
-            T[2, 3] = m.height_m
-            return Mount(T, log_mount.parent_frame, log_mount.child_frame)
-        return log_mount
-    T = np.eye(4)
-    yaw = 0.0
-    if log_mount is not None:
-        T[:3, 3] = np.asarray(log_mount.T_base_cam)[:3, 3]
-        yaw = mount_angles(np.asarray(log_mount.T_base_cam)[:3, :3])[2]
-    T[:3, :3] = mount_rotation(math.radians(m.pitch_deg), math.radians(m.roll_deg), yaw)
-    if m.height_m is not None:
-        T[2, 3] = m.height_m
-    elif log_mount is None:
-        T[2, 3] = float("nan")  # unknown: the front-end measures it from the floor
-    return Mount(T)
+    intrinsics = (c.fx, c.fy, c.cx, c.cy) if c.fx is not None else None
+    return open_log_with_overrides(log_path, color_topic=c.color_topic, depth_topic=c.depth_topic,
+                                   info_topic=c.info_topic, sync_tolerance=c.sync_tolerance_s,
+                                   intrinsics=intrinsics)
 
 
 def _trajectory(stamps, poses_base, T_base_cam, frame_id="odom"):
-    from planar_vo.io.types import Trajectory
-
     return Trajectory(np.asarray(stamps), base_poses_to_cam_matrices(poses_base, T_base_cam),
                       frame_id=frame_id, child_frame_id="camera_optical_frame")
 
@@ -156,16 +76,20 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
     next frames and tracks their corners (:meth:`PlanarOdometry.track`); a third loads
     the output stage's modules meanwhile. The log is read once: the summary in the report
     comes from the same pass (``summary()`` after a complete ``frames()`` pass). The
-    kernels underneath (OpenCV, OpenBLAS) get one thread each for the run: the parallelism
+    kernels underneath (OpenCV, BLAS) get one thread each for the run: the parallelism
     is the pipeline's, and on 2 cores more threads only compete with it (the previous
     settings are restored afterwards). Results do not depend on any of this.
-    """
-    import cv2
 
+    BLAS: the front-end's calls are all small (dot products over ~10^4 samples, 3x3
+    solves): threads cannot pay for their start-up there, and idle OpenBLAS workers spin,
+    competing with the decoding thread for the cores (on a loaded 2-core machine the
+    default made the plane detector ~10x slower). threadpoolctl limits every BLAS loaded
+    (numpy's and OpenCV's OpenBLAS).
+    """
     cv_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        with blas_threads(1):
+        with threadpool_limits(limits=1, user_api="blas"):
             return _run(log_path, out_dir, config or RunConfig(), progress=progress, gt_path=gt_path)
     finally:
         cv2.setNumThreads(cv_threads)
@@ -208,7 +132,6 @@ def _prepare_outputs(config: RunConfig) -> float:
             import mcap_protobuf.writer  # noqa: F401
             import rosbags.rosbag2  # noqa: F401
 
-            import planar_vo.io.trajectory  # noqa: F401
             from planar_vo.io import rosmsg
             rosmsg.typestore(rosmsg.CDR)  # ROS 2 poses.mcap: the type store is built once
         if config.output.plot:
@@ -232,125 +155,163 @@ def _total_frames(n_log: int | None, c) -> int | None:
 
 
 def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResult:
-    from concurrent.futures import ThreadPoolExecutor
-
-    from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
-    from planar_vo.frontend.odometry import PlanarOdometry
-
+    """The paper's flow: open the log, level, per frame track -> estimate -> add to the
+    graph, solve, report, write."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
-    cpu_start = time.process_time()
-    timings = Counter()
-    cpu = Counter()  # CPU seconds per stage (thread time), comparable on a loaded machine
+    clock = _Stopwatch()
+    prepared = _prepare_outputs_in_background(config)
+    with open_input(log_path, config) as log:
+        odometry, graph = _level(log, config)
+        loop = _process_frames(log, odometry, graph, config, clock, progress)
+        stats = dict(log.stats)  # before the summary, which may read the log again
+        with clock.stage("summary"):
+            # After a pass over the whole log this reads nothing: the pass recorded what it needs.
+            log_summary = _safe_summary(log)
+        gt = log.ground_truth
+        log_format = getattr(log, "format", "")
+    if not loop.stamps:
+        raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
+                         + (f" ({loop.stop_reason})" if loop.stop_reason else "")
+                         + "; check the topics with 'planar-vo info'")
+    with clock.stage("optimize"):
+        raw, smoothed = _solve(graph, config)
+    if gt_path is not None:
+        gt = read_tum_trajectory(gt_path)
+    T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
+    clock.cpu["outputs_import_background"] = prepared.result()
+    with clock.stage("write"):
+        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format)
+        files["steps"] = _write_steps(out / "steps.csv", loop.steps)
+    clock.finish()
+    report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock)
+    write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
+    files["report"] = str(out / "report.json")
+    return RunResult(out, report, loop.partial, loop.stop_reason, files)
 
+
+class _Stopwatch:
+    """Wall and CPU seconds per stage of a run (CPU: thread time, comparable on a loaded machine)."""
+
+    def __init__(self):
+        self.t_start, self.cpu_start = time.perf_counter(), time.process_time()
+        self.wall: Counter = Counter()
+        self.cpu: Counter = Counter()
+        self.wall_total = 0.0
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        yield
+        self.wall[name] += time.perf_counter() - t0
+        self.cpu[name] += time.thread_time() - c0
+
+    def finish(self) -> None:
+        self.wall_total = time.perf_counter() - self.t_start
+        self.cpu["process"] = time.process_time() - self.cpu_start  # all threads, OpenCV's workers included
+
+
+def _prepare_outputs_in_background(config: RunConfig):
+    """A future of :func:`_prepare_outputs` run in a side thread (its CPU seconds)."""
     side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-outputs")
     prepared = side.submit(_prepare_outputs, config)
     side.shutdown(wait=False)
-    with open_input(log_path, config) as log:
-        log_format = getattr(log, "format", "")
-        intr = log.intrinsics
-        mount = resolve_mount(log.mount, config)
-        odo = PlanarOdometry(intr, mount, config.frontend)
-        graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
-        c = config.input
-        bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
-        stamps: list[float] = []
-        statuses = Counter()
-        frame_infos = []
-        steps: list[list] = []
-        stop_reason = None
-        partial = False
-        # The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
-        # both GIL-free for the most part, while the main thread works on earlier frames.
-        ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odo)
-        reader = Prefetcher(ahead, depth=4)
-        t_wait = time.perf_counter()
-        try:
-            with reader:
-                for frame in reader:
-                    t0, c0 = time.perf_counter(), time.thread_time()
-                    timings["read_wait"] += t0 - t_wait
-                    result = odo.process(frame)
-                    t1, c1 = time.perf_counter(), time.thread_time()
-                    timings["frontend"] += t1 - t0
-                    cpu["frontend"] += c1 - c0
-                    for k, v in result.timings.items():
-                        timings[f"frontend.{k}"] += v
-                    graph.add_frame(result)
-                    t_wait = time.perf_counter()
-                    timings["backend"] += t_wait - t1
-                    cpu["backend"] += time.thread_time() - c1
-                    stamps.append(frame.stamp)
-                    statuses[result.step.status if result.step is not None else "first"] += 1
-                    frame_infos.append(_frame_summary(result))
-                    if result.step is not None:
-                        steps.append(_step_row(result))
-                    bar.update(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
-        except KeyboardInterrupt:
-            partial, stop_reason = True, "interrupted by the user (Ctrl-C)"
-        except PartialResult as exc:
-            partial, stop_reason = True, str(exc)
-        timings["read_decode_background"] += reader.busy_s - ahead.wall_s
-        cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
-        timings["track_background"] += ahead.wall_s
-        cpu["track_background"] += ahead.cpu_s
-        bar.close(len(stamps), **{k: v for k, v in statuses.items() if k != "first"})
-        stats = dict(log.stats)
-        # After a pass over the whole log this reads nothing: the pass recorded what it needs.
-        t0, c0 = time.perf_counter(), time.thread_time()
-        log_summary = _safe_summary(log)
-        timings["summary"] += time.perf_counter() - t0
-        cpu["summary"] += time.thread_time() - c0
-        gt = log.ground_truth
+    return prepared
 
-    if not stamps:
-        raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
-                         + (f" ({stop_reason})" if stop_reason else "")
-                         + "; check the topics with 'planar-vo info'")
 
-    t0, c0 = time.perf_counter(), time.thread_time()
+def _level(log, config: RunConfig):
+    """The front-end, levelled with the log's mount (or the configured one, or the floor),
+    and the pose graph."""
+    odometry = PlanarOdometry(log.intrinsics, log.mount, config.frontend)
+    graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
+    return odometry, graph
+
+
+@dataclass
+class _FrameLoop:
+    """What the per-frame loop collected: colour stamps of the frames with a pose, step
+    statuses, the planarity evidence, ``steps.csv`` rows, and why it stopped early."""
+
+    stamps: list = field(default_factory=list)
+    statuses: Counter = field(default_factory=Counter)
+    frame_infos: list = field(default_factory=list)
+    steps: list = field(default_factory=list)
+    partial: bool = False
+    stop_reason: str | None = None
+
+    def add(self, frame, result) -> None:
+        self.stamps.append(frame.stamp)
+        self.statuses[result.step.status if result.step is not None else "first"] += 1
+        self.frame_infos.append(frame_summary(result))
+        if result.step is not None:
+            self.steps.append(_step_row(result))
+
+    def counts(self) -> dict:
+        return {k: v for k, v in self.statuses.items() if k != "first"}
+
+
+def _process_frames(log, odometry, graph, config: RunConfig, clock: _Stopwatch, progress: bool) -> _FrameLoop:
+    """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph.
+
+    The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
+    both GIL-free for the most part, while the main thread works on earlier frames.
+    """
+    c = config.input
+    loop = _FrameLoop()
+    bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
+    ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odometry)
+    reader = Prefetcher(ahead, depth=4)
+    timings, cpu = clock.wall, clock.cpu
+    t_wait = time.perf_counter()
+    try:
+        with reader:
+            for frame in reader:
+                t0, c0 = time.perf_counter(), time.thread_time()
+                timings["read_wait"] += t0 - t_wait
+                result = odometry.process(frame)
+                t1, c1 = time.perf_counter(), time.thread_time()
+                timings["frontend"] += t1 - t0
+                cpu["frontend"] += c1 - c0
+                for k, v in result.timings.items():
+                    timings[f"frontend.{k}"] += v
+                graph.add_frame(result)
+                t_wait = time.perf_counter()
+                timings["backend"] += t_wait - t1
+                cpu["backend"] += time.thread_time() - c1
+                loop.add(frame, result)
+                bar.update(len(loop.stamps), **loop.counts())
+    except KeyboardInterrupt:
+        loop.partial, loop.stop_reason = True, "interrupted by the user (Ctrl-C)"
+    except PartialResult as exc:
+        loop.partial, loop.stop_reason = True, str(exc)
+    timings["read_decode_background"] += reader.busy_s - ahead.wall_s
+    cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
+    timings["track_background"] += ahead.wall_s
+    cpu["track_background"] += ahead.cpu_s
+    bar.close(len(loop.stamps), **loop.counts())
+    return loop
+
+
+def _solve(graph, config: RunConfig):
+    """``(raw, smoothed)`` (N, 3) base_link poses: the chained steps and the graph's solution."""
     raw = graph.raw_poses()
     smoothed = graph.estimate() if config.solver == "online" else graph.optimize()
-    timings["optimize"] += time.perf_counter() - t0
-    cpu["optimize"] += time.thread_time() - c0
+    return raw, smoothed
 
-    if gt_path is not None:
-        from planar_vo.io.trajectory import read_tum_trajectory
-        gt = read_tum_trajectory(gt_path)
 
-    T_base_cam = np.asarray(odo.mount.T_base_cam, dtype=float)
-    cpu["outputs_import_background"] = prepared.result()
-    t0, c0 = time.perf_counter(), time.thread_time()
-    files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt, log_format)
-    files["steps"] = _write_steps(out / "steps.csv", steps)
-    timings["write"] += time.perf_counter() - t0
-    cpu["write"] += time.thread_time() - c0
-    wall = time.perf_counter() - t_start
-    cpu["process"] = time.process_time() - cpu_start  # all threads, OpenCV's workers included
-
-    n = len(stamps)
-    report = {
+def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, config, clock: _Stopwatch) -> dict:
+    """``report.json``: counts, verdicts, back-end statistics and time per stage."""
+    n = len(loop.stamps)
+    timings, cpu, wall = clock.wall, clock.cpu, clock.wall_total
+    return {
         "log": str(log_path),
         "input": log_summary,
-        "partial": partial,
-        "stop_reason": stop_reason,
-        "frames": {
-            "read": n + len(stats.get("corrupt", [])),
-            "paired": stats.get("paired"),
-            "unpaired_color": stats.get("unpaired_color"),
-            "unpaired_depth": stats.get("unpaired_depth"),
-            "with_pose": n,
-            "estimated_dpp": statuses.get("dpp", 0),
-            "estimated_2pt": statuses.get("2pt", 0),
-            "partial": statuses.get("partial", 0),
-            "bridged": statuses.get("bridged", 0),
-            "failed": len(stats.get("corrupt", [])),
-            "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
-        },
-        "motion": motion_report(statuses),
-        "mount": _mount_report(odo.mount),
-        "planarity": _planarity_report(frame_infos, levelled=_is_levelled(mount, frame_infos)),
+        "partial": loop.partial,
+        "stop_reason": loop.stop_reason,
+        "frames": _frame_counts(loop, stats),
+        "motion": motion_report(loop.statuses),
+        "mount": _mount_report(odometry.mount),
+        "planarity": planarity_report(loop.frame_infos, levelled=is_levelled(odometry.levelling, loop.frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
@@ -361,9 +322,23 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         "fps_excluding_writing": round(n / max(wall - timings["write"], 1e-9), 2),
         "solver": config.solver,
     }
-    _atomic_text(out / "report.json", json.dumps(report, indent=2) + "\n")
-    files["report"] = str(out / "report.json")
-    return RunResult(out, report, partial, stop_reason, files)
+
+
+def _frame_counts(loop: _FrameLoop, stats: dict) -> dict:
+    n, statuses = len(loop.stamps), loop.statuses
+    return {
+        "read": n + len(stats.get("corrupt", [])),
+        "paired": stats.get("paired"),
+        "unpaired_color": stats.get("unpaired_color"),
+        "unpaired_depth": stats.get("unpaired_depth"),
+        "with_pose": n,
+        "estimated_dpp": statuses.get("dpp", 0),
+        "estimated_2pt": statuses.get("2pt", 0),
+        "partial": statuses.get("partial", 0),
+        "bridged": statuses.get("bridged", 0),
+        "failed": len(stats.get("corrupt", [])),
+        "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
+    }
 
 
 #: Below this share of steps with a measured translation the run is not a trajectory.
@@ -409,114 +384,8 @@ def _write_steps(path: Path, rows: list[list]) -> str:
     lines = [STEPS_HEADER]
     for r in rows:
         lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]}")
-    _atomic_text(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return str(path)
-
-
-def _frame_summary(result) -> dict:
-    info = result.info or {}
-    lev = info.get("levelling") or {}
-    oop = info.get("out_of_plane")
-    return {
-        "floor_normal_cam": lev.get("floor_normal_cam"),
-        "camera_height_m": lev.get("camera_height_m"),
-        "motion_6dof": (oop["R"], oop["t"]) if oop else None,
-    }
-
-
-#: Beyond these the motion is not planar: camera height (m) and tilt (deg) ranges, p5-p95.
-PLANAR_HEIGHT_RANGE_M = 0.05
-PLANAR_TILT_RANGE_DEG = 3.0
-
-
-def _spread(values) -> float:
-    v = np.asarray(values, dtype=float)
-    return float(np.percentile(v, 95) - np.percentile(v, 5)) if len(v) else float("nan")
-
-
-MOTION_WINDOW = 100
-
-
-def _chain(steps) -> tuple[np.ndarray, np.ndarray]:
-    """Camera positions (n+1, 3) and y axes (n+1, 3) in the first levelled frame from steps
-    ``(R, t)`` with ``X2 = R X1 + t`` (None: no fit, taken as no motion)."""
-    T = np.eye(4)
-    pos, yax = [T[:3, 3].copy()], [T[:3, 1].copy()]
-    for m in steps:
-        if m is not None:
-            T21 = np.eye(4)
-            T21[:3, :3], T21[:3, 3] = np.asarray(m[0]), np.asarray(m[1])
-            T = T @ np.linalg.inv(T21)
-        pos.append(T[:3, 3].copy())
-        yax.append(T[:3, 1].copy())
-    return np.array(pos), np.array(yax)
-
-
-def _planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
-    """Is the motion planar? Two independent pieces of evidence, both from the data.
-
-    * floor: on a planar robot the floor normal in the camera frame and the camera height
-      stay fixed (handheld cameras change both, or show no floor at all);
-    * motion (decides when the floor was not seen): the per-step 6-DoF fits
-      (:mod:`planar_vo.frontend.planarity`) chained over windows of ``MOTION_WINDOW`` steps in
-      the levelled frame must keep their height and vertical axis. Without a mount or a floor
-      the estimator assumes a level camera, and so does this test.
-    """
-    n = len(frame_infos)
-    rep: dict = {"frames": n}
-    verdicts = []
-    normals = [np.asarray(f["floor_normal_cam"], float) for f in frame_infos if f.get("floor_normal_cam") is not None]
-    heights = [float(f["camera_height_m"]) for f in frame_infos if f.get("camera_height_m") is not None]
-    rep["floor_seen_frames"] = len(normals)
-    if len(normals) >= max(3, 0.2 * n):
-        N = np.stack(normals)
-        mean = N.mean(0) / np.linalg.norm(N.mean(0))
-        tilt = _spread(np.degrees(np.arccos(np.clip(N @ mean, -1, 1))))
-        h = _spread(heights)
-        rep["floor"] = {"tilt_range_deg": round(tilt, 3), "height_range_m": round(h, 4)}
-        verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and h < PLANAR_HEIGHT_RANGE_M)
-
-    # Chained 6-DoF steps random-walk (a few cm and degrees over hundreds of frames), so
-    # they are judged over windows of at most MOTION_WINDOW steps, and only when the floor,
-    # far more precise, was not seen.
-    steps = [f.get("motion_6dof") for f in frame_infos[1:]]
-    fitted = sum(m is not None for m in steps)
-    if fitted >= max(3, 0.5 * len(steps)):
-        heights, tilts = [], []
-        w = MOTION_WINDOW
-        for a in range(0, max(1, len(steps) - w // 2), w // 2):
-            P, Y = _chain(steps[a:a + w])
-            heights.append(_spread(P[:, 1]))
-            tilts.append(_spread(np.degrees(np.arccos(np.clip(Y[:, 1], -1, 1)))))
-        height, tilt = max(heights), max(tilts)
-        rep["motion"] = {"steps_fitted": fitted, "window_steps": w, "height_range_m": round(height, 4),
-                         "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed"}
-        if not verdicts:
-            verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M)
-
-    if not verdicts:
-        rep["verdict"] = "unverified"
-        rep["message"] = (f"the floor was seen in {len(normals)} of {n} frames and the motion could not be "
-                          "fitted: planar motion is unverified and the planar model may not hold")
-    elif all(verdicts):
-        rep["verdict"] = "planar"
-        rep["message"] = "camera height and tilt stay constant: consistent with planar motion"
-    else:
-        worst = rep.get("floor") or rep.get("motion")
-        rep["verdict"] = "not_planar"
-        rep["message"] = (f"the camera's height varies by {worst['height_range_m']:.2f} m and its tilt by "
-                          f"{worst['tilt_range_deg']:.1f} deg: the motion is NOT planar (handheld?), so the "
-                          "planar estimates are approximations"
-                          + ("" if levelled else "; no floor and no mount: the camera was assumed level, "
-                             "give --pitch-deg/--roll-deg if it is a tilted robot camera"))
-    return rep
-
-
-def _is_levelled(mount, frame_infos) -> bool:
-    """True when gravity is known: a mount tilt was given, or the floor was seen."""
-    if mount is not None and np.all(np.isfinite(np.asarray(mount.T_base_cam)[:3, :3])):
-        return True
-    return any(f.get("floor_normal_cam") is not None for f in frame_infos)
 
 
 def _mount_report(mount) -> dict:
@@ -550,23 +419,15 @@ def _jsonable(obj):
     return str(obj)
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt,
                    log_format: str = "") -> dict:
-    from planar_vo.io.trajectory import poses_format_for, write_poses_mcap, write_tum_trajectory
-
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
     files = {}
     write_tum_trajectory(out / "raw.tum", raw_traj)
     write_tum_trajectory(out / "smoothed.tum", smooth_traj)
     files["raw"], files["smoothed"] = str(out / "raw.tum"), str(out / "smoothed.tum")
-    _atomic_text(out / "config.yaml", dump_config(config))
+    write_text_atomic(out / "config.yaml", dump_config(config))
     files["config"] = str(out / "config.yaml")
     if config.output.poses_mcap:
         transforms = [(s, "odom", "base_link", se2_to_matrix(p)) for s, p in zip(stamps, smoothed)]

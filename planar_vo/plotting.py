@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.metrics import associate
+from planar_vo.io.trajectory import associate_stamps
 
 _STYLES = {"raw": dict(color="tab:orange", lw=1.2, ls="--"), "smoothed": dict(color="tab:blue", lw=1.8),
            "ground truth": dict(color="k", lw=1.0, alpha=0.7)}
@@ -26,7 +26,7 @@ def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, t
     fig, ax = plt.subplots(figsize=(7, 6), dpi=110)
     first = next(iter(trajectories.values()))
     if ground_truth is not None and len(ground_truth) and len(first):
-        ia, ib = associate(first.stamps, ground_truth.stamps, 0.05)
+        ia, ib = associate_stamps(first.stamps, ground_truth.stamps, 0.05)
         if len(ia):
             A = first.poses[ia[0]] @ np.linalg.inv(ground_truth.poses[ib[0]])
             P = (A[:3, :3] @ ground_truth.positions.T).T + A[:3, 3]

@@ -1,7 +1,7 @@
 """Shared fixtures: small synthetic logs rendered once per session."""
 import pytest
 
-from planar_vo.io.synth import SynthConfig, write_synth_log
+from planar_vo.sim.synth import SynthConfig, write_synth_log
 
 
 @pytest.fixture(scope="session")

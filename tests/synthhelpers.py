@@ -1,5 +1,5 @@
 """Shared by the tests that render small synthetic sequences in memory."""
-from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+from planar_vo.sim.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
 
 
 def render(**kw):

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.frontend.planes import PlaneDetector
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 K = CameraIntrinsics(960, 540, 540.7, 540.7, 479.5, 269.5)
 

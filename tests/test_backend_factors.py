@@ -91,7 +91,7 @@ def test_cauchy_downweights_large_residuals_more_than_huber():
 
 def test_config_validation():
     from planar_vo.configtools import from_dict
-    from planar_vo.errors import ConfigError
+    from planar_vo.core.errors import ConfigError
     cfg = from_dict(BackendConfig, {"robust_kernel": "huber", "gate_max_deg": 8})
     assert cfg.robust_kernel == "huber" and cfg.gate_max_deg == 8.0
     with pytest.raises(ConfigError, match="robust_kernel"):

@@ -7,10 +7,10 @@ import pytest
 
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
-from planar_vo.backend.simulate import (WrongAssociationInjector, simulate_manhattan_sequence,
+from planar_vo.sim.simulate import (WrongAssociationInjector, simulate_manhattan_sequence,
                                         trajectory_errors)
-from planar_vo.frontend.types import STATUS_BRIDGED, STATUS_DPP, FrameResult, ManhattanObservation, Step
-from planar_vo.geometry import se2_between, wrap_angle
+from planar_vo.core.steps import STATUS_BRIDGED, STATUS_DPP, FrameResult, ManhattanObservation, Step
+from planar_vo.core.geometry import se2_between, wrap_angle
 
 N = 1000
 

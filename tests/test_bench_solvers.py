@@ -52,7 +52,7 @@ def test_outputs_are_complete(quick_run):
 
 
 def test_bad_arguments_are_one_line_errors():
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     parser = argparse.ArgumentParser()
     solvers.add_arguments(parser)

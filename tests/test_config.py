@@ -2,7 +2,7 @@
 import pytest
 
 from planar_vo.config import RunConfig, dump_config, load_config
-from planar_vo.errors import ConfigError
+from planar_vo.core.errors import ConfigError
 
 
 def test_defaults_round_trip_through_yaml(tmp_path):
@@ -16,9 +16,9 @@ def test_defaults_round_trip_through_yaml(tmp_path):
 def test_file_and_overrides(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("solver: online\ninput:\n  stride: 2\n")
-    cfg = load_config(p, {"input": {"stride": 3}, "mount": {"pitch_deg": 10.0, "roll_deg": 2}})
+    cfg = load_config(p, {"input": {"stride": 3}, "frontend": {"levelling": {"pitch_deg": 10.0, "roll_deg": 2}}})
     assert cfg.solver == "online" and cfg.input.stride == 3
-    assert cfg.mount.pitch_deg == 10.0 and cfg.mount.roll_deg == 2.0
+    assert cfg.frontend.levelling.pitch_deg == 10.0 and cfg.frontend.levelling.roll_deg == 2.0
 
 
 @pytest.mark.parametrize("text, needle", [
@@ -28,6 +28,11 @@ def test_file_and_overrides(tmp_path):
     ("solver: fast\n", "solver"),
     ("input:\n  fx: 500.0\n", "fx, fy, cx, cy"),
     ("- a\n- b\n", "mapping"),
+    ("mount:\n  pitch_deg: 10\n", "unknown config key 'mount'"),  # the mount is set in frontend.levelling
+    ("frontend:\n  levelling:\n    pitch_deg: 10\n", "both pitch_deg and roll_deg"),
+    ("frontend:\n  max_depth: 0.2\n", "'frontend.max_depth' must exceed"),
+    ("frontend:\n  planes:\n    min_depth: 0.5\n", "unknown config key 'frontend.planes.min_depth'"),
+    ("backend:\n  gate_sigmas: -1\n", "'backend.gate_sigmas' must be > 0"),
 ])
 def test_bad_config_is_one_clear_error(tmp_path, text, needle):
     p = tmp_path / "c.yaml"

@@ -14,14 +14,14 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.graph import PlanarPoseGraph
 from planar_vo.frontend import odometry as odometry_module
 from planar_vo.frontend.odometry import PlanarOdometry
-from planar_vo.frontend.types import (STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
+from planar_vo.core.steps import (STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
                                       ManhattanObservation, Step)
-from planar_vo.io.synth import SynthConfig, write_synth_log
+from planar_vo.sim.synth import SynthConfig, write_synth_log
 from synthhelpers import render as _render
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from planar_vo.frontend.config import FeatureConfig
 from planar_vo.frontend.features import FeatureTracker, lift, undistort
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 K = CameraIntrinsics(640, 480, 500.0, 500.0, 319.5, 239.5)
 

@@ -1,10 +1,10 @@
-"""The pinned frames and signs of planar_vo.geometry, proven on simulated points."""
+"""The pinned frames and signs of planar_vo.core.geometry, proven on simulated points."""
 import math
 
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 
 
 def test_mount_angles_round_trip():

@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.frontend.config import LevellingConfig, PlaneConfig
 from planar_vo.frontend.levelling import Levelling
 from planar_vo.frontend.planes import PlaneDetector
-from planar_vo.io.types import CameraIntrinsics, Mount
+from planar_vo.core.types import CameraIntrinsics, Mount
 
 K = CameraIntrinsics(640, 360, 360.0, 360.0, 319.5, 179.5)
 
@@ -126,7 +126,7 @@ def test_levelling_converges_on_a_rendered_floor():
 
 def test_config_validation():
     from planar_vo.configtools import from_dict
-    from planar_vo.errors import ConfigError
+    from planar_vo.core.errors import ConfigError
     from planar_vo.frontend.config import FrontendConfig
 
     with pytest.raises(ConfigError, match="levelling.heigth_m"):

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.frontend.config import ManhattanConfig
 from planar_vo.frontend.manhattan import ManhattanTracker, group_walls
 from planar_vo.frontend.planes import Plane
@@ -109,7 +109,7 @@ def test_tracker_carries_unseen_frames_and_prunes():
 # --------------------------------------------------------------------- synthetic corridor
 @pytest.fixture(scope="module")
 def synth_frames():
-    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+    from planar_vo.sim.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
 
     cfg = SynthConfig(layout="lturn", n_frames=100, seed=5)
     return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg, range(2, 100, 10)))

@@ -4,8 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
-from planar_vo.metrics import associate, path_length, planarity, trajectory_errors, umeyama_se3
+from planar_vo.core import geometry as g
+from planar_vo.io.trajectory import associate_stamps
+from planar_vo.metrics import path_length, planarity, trajectory_errors
 
 
 def _cam_poses(poses_se2, height=0.8):
@@ -16,18 +17,8 @@ def _cam_poses(poses_se2, height=0.8):
 
 
 def test_associate_nearest_unique():
-    ia, ib = associate(np.array([0.0, 0.1, 0.2, 0.5]), np.array([0.005, 0.11, 0.3]), 0.02)
+    ia, ib = associate_stamps(np.array([0.0, 0.1, 0.2, 0.5]), np.array([0.005, 0.11, 0.3]), 0.02)
     assert ia.tolist() == [0, 1] and ib.tolist() == [0, 1]
-
-
-def test_umeyama_recovers_rigid_transform():
-    rng = np.random.default_rng(0)
-    P = rng.normal(size=(30, 3))
-    T = np.eye(4)
-    T[:3, :3] = g.rot_z(0.7) @ g.rot_x(0.2)
-    T[:3, 3] = [1, -2, 0.5]
-    Q = (T[:3, :3] @ P.T).T + T[:3, 3]
-    assert np.allclose(umeyama_se3(P, Q), T, atol=1e-10)
 
 
 def test_errors_of_known_drift():
@@ -48,6 +39,7 @@ def test_errors_of_known_drift():
     expected_drift = np.linalg.norm(np.array(poses)[-1, :2] - gt[-1, :2])
     assert e.endpoint_drift_pct == pytest.approx(10.0 * expected_drift, rel=1e-9)
     assert 0 < e.ate_rmse_m < expected_drift
+    assert e.ate_alignment == "first_pose"  # a straight path leaves the SE(3) alignment undetermined
     perfect = trajectory_errors(stamps, _cam_poses(gt), stamps, _cam_poses(gt))
     assert perfect.ate_rmse_m < 1e-12 and perfect.endpoint_drift_m < 1e-12
     assert perfect.rpe_trans_per_m < 1e-12
@@ -62,3 +54,12 @@ def test_planarity_flags_handheld_motion():
     bumpy[:, 2, 3] += np.linspace(0, 0.3, n)
     assert planarity(bumpy)["height_range_m"] == pytest.approx(0.3)
     assert path_length(np.zeros((1, 3))) == 0.0
+
+
+def test_rpe_is_nan_when_the_path_is_shorter_than_its_segment():
+    n = 11
+    stamps = np.arange(n) * 0.1
+    gt = np.stack([np.linspace(0, 0.5, n), np.zeros(n), np.zeros(n)], 1)  # 0.5 m < the 1 m RPE segment
+    e = trajectory_errors(stamps, _cam_poses(gt), stamps, _cam_poses(gt))
+    assert e.matched == n and math.isnan(e.rpe_trans_per_m) and math.isnan(e.rpe_rot_deg_per_m)
+    assert e.ate_rmse_m < 1e-12

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
-from planar_vo.errors import InputError
+from planar_vo.core import geometry as g
+from planar_vo.core.errors import InputError
 from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
 from planar_vo.backend.graph import PlanarPoseGraph
-from planar_vo.frontend.types import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame
+from planar_vo.core.steps import STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, STATUSES
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame
 from synthhelpers import render as _render
 
 
@@ -57,7 +57,9 @@ def _check_steps(results):
         assert np.linalg.eigvalsh(s.information).min() > 0
         assert s.status in STATUSES
         assert {"planes", "manhattan", "features", "estimate", "total"} <= set(r.timings)
-        assert {"features", "matches", "planes", "walls", "levelling", "floor_seen"} <= set(r.info)
+        d = r.diagnostics
+        assert d.features >= d.matches >= d.matches_with_depth >= 0 and d.planes >= d.walls
+        assert d.levelling is not None and d.floor_seen == (d.floor_normal_cam is not None)
 
 
 @pytest.mark.slow
@@ -147,7 +149,7 @@ def test_untextured_hall_is_bridged_not_guessed():
         e[2] = float(g.wrap_angle(e[2]))
         if r.step.status == STATUS_BRIDGED:
             # a constant-velocity guess whose sigma grows while nothing is measured
-            assert "bridge" in r.info and r.step.inliers == 0
+            assert r.diagnostics.bridge in ("constant_velocity", "zero") and r.step.inliers == 0
             zb.append(e / np.sqrt(np.diag(cov)))
         elif r.step.status == STATUS_PARTIAL:
             # the yaw is measured; the translation only where walls pair up
@@ -193,4 +195,4 @@ def test_input_validation():
     r0 = odo.process(RGBDFrame(0, 0.0, ok_c, ok_d))
     r1 = odo.process(RGBDFrame(1, 0.1, ok_c, ok_d))
     assert r0.step is None and r1.step.status == STATUS_BRIDGED
-    assert r1.info["levelling"]["source"] == "initial" and not r1.info["floor_seen"]
+    assert r1.diagnostics.levelling.source == "initial" and not r1.diagnostics.floor_seen

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from planar_vo.geometry import rot_x, rot_y
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame
-from planar_vo.peers import PEER_METHODS, PeerMethod, PeerOptions, PeerStep, PeerTracker, make_method, track
+from planar_vo.core.geometry import rot_x, rot_y
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame
+from planar_vo.bench.peer_methods import PEER_METHODS, PeerMethod, PeerOptions, PeerStep, PeerTracker, make_method, track
 
 pytest.importorskip("open3d")
 pytest.importorskip("cv2")
@@ -248,7 +248,7 @@ def test_bench_peers_figures_on_a_log_with_ground_truth(synthetic_log, tmp_path,
 
 
 def test_bench_peers_rejects_bad_arguments(synthetic_log, tmp_path):
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     bench, args = _bench_args(synthetic_log, synthetic_log, "--gt", tmp_path / "a.tum")
     with pytest.raises(InputError, match="--gt given 1 times for 2 logs"):

@@ -133,7 +133,7 @@ def test_real_tum_sample_runs_and_is_reported_not_planar(tmp_path, capsys):
     """
     from pathlib import Path
 
-    from planar_vo.metrics import associate
+    from planar_vo.io.trajectory import associate_stamps
 
     sample = Path(__file__).resolve().parents[1] / "data" / "tum_fr1_xyz_head10"
     log = tmp_path / "tum.mcap"
@@ -145,7 +145,7 @@ def test_real_tum_sample_runs_and_is_reported_not_planar(tmp_path, capsys):
     assert pl["verdict"] == "not_planar" and pl["motion"]["gravity"] == "assumed"
     gt = read_tum_trajectory(sample / "groundtruth.txt")
     est = read_tum_trajectory(tmp_path / "run" / "raw.tum")
-    _, ib = associate(est.stamps, gt.stamps, 0.02)
+    _, ib = associate_stamps(est.stamps, gt.stamps, 0.02)
     R0 = gt.poses[ib[0]][:3, :3]
     tilt = np.degrees(np.arccos(np.clip([(R0.T @ T[:3, 1])[1] for T in gt.poses[ib]], -1, 1)))
     true_range = np.percentile(tilt, 95) - np.percentile(tilt, 5)
@@ -171,7 +171,7 @@ def test_demo_recipe_is_a_valid_synth_config():
 
     from planar_vo.commands.demo import RECIPE_NAME
     from planar_vo.configtools import from_dict
-    from planar_vo.io.synth import SynthConfig
+    from planar_vo.sim.synth import SynthConfig
 
     text = resources.files("planar_vo.data").joinpath(RECIPE_NAME).read_text()  # as installed
     cfg = from_dict(SynthConfig, yaml.safe_load(text))
@@ -180,7 +180,7 @@ def test_demo_recipe_is_a_valid_synth_config():
 
 def test_intrinsics_flags_override_the_log(lturn_log, tmp_path):
     """--fx/--fy/--cx/--cy reach the front-end: the true values reproduce the log's own run."""
-    from planar_vo.io.synth import SynthConfig
+    from planar_vo.sim.synth import SynthConfig
 
     c = SynthConfig()
     assert main(["run", str(lturn_log), "--out", str(tmp_path / "a"), "--quiet", "--no-plot", "--stop", "20",

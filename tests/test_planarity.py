@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from planar_vo.frontend.planarity import out_of_plane_motion
-from planar_vo.geometry import rot_x, rot_y, rot_z
+from planar_vo.core.geometry import rot_x, rot_y, rot_z
 
 
 def _points(rng, n=200):

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planar_vo import geometry as g
+from planar_vo.core import geometry as g
 from planar_vo.frontend.config import PlaneConfig
 from planar_vo.frontend.planes import FLOOR, WALL, PlaneDetector
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 K = CameraIntrinsics(960, 540, 540.7, 540.7, 479.5, 269.5)
 DATA = Path(__file__).resolve().parents[1] / "data" / "tum_fr1_xyz_head10"
@@ -113,7 +113,7 @@ SYNTH_FRAMES = list(range(0, 100, 9))  # 12 frames along an L-turn corridor
 
 @pytest.fixture(scope="module")
 def synth_lturn():
-    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+    from planar_vo.sim.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
 
     cfg = SynthConfig(layout="lturn", n_frames=100, seed=3)
     return synth_intrinsics(cfg), synth_mount(cfg), list(render_sequence(cfg, SYNTH_FRAMES))

@@ -1,4 +1,4 @@
-"""Minimal planar solvers against simulated ground truth (conventions of planar_vo.geometry)."""
+"""Minimal planar solvers against simulated ground truth (conventions of planar_vo.core.geometry)."""
 from __future__ import annotations
 
 import math
@@ -11,13 +11,13 @@ from planar_vo.frontend.solvers import (
     essential_from_planar,
     heading_of_direction,
     homography_2pt_batch,
-    make_planar_problem,
     manhattan_yaw_candidates,
     relpose_planar_dirpoint_1pt,
     relpose_upright_planar_homography_2pt,
     yaw_from_manhattan_headings,
 )
-from planar_vo.geometry import levelled_motion_to_pose, rot_y, wrap_angle
+from planar_vo.sim.problems import make_planar_problem
+from planar_vo.core.geometry import levelled_motion_to_pose, rot_y, wrap_angle
 
 
 def _closest(sols: list[PlanarMotion], yaw: float, t_dir: np.ndarray) -> tuple[float, float]:

@@ -7,31 +7,37 @@ import time
 import numpy as np
 import pytest
 
-from planar_vo.pipeline import _loaded_openblas, blas_threads
+from threadpoolctl import threadpool_info
+
+from planar_vo import pipeline
 from planar_vo.prefetch import Prefetcher
 
 
-def test_blas_threads_limits_and_restores():
-    libs = _loaded_openblas()
-    if not libs:
-        pytest.skip("no OpenBLAS found in this process (not Linux, or numpy without OpenBLAS)")
-    before = [get() for _, get in libs]
-    with blas_threads(1):
-        assert [get() for _, get in libs] == [1] * len(libs)
+def _blas_threads() -> list[int]:
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_run_limits_blas_threads_and_restores(monkeypatch):
+    """``run`` gives every BLAS one thread while it runs (threadpoolctl) and restores the counts,
+    also after an exception."""
+    import cv2  # noqa: F401 - its OpenBLAS too
+
+    before = _blas_threads()
+    if not before:
+        pytest.skip("no BLAS found by threadpoolctl in this process")
+    seen = []
+
+    def fake_run(*args, **kwargs):
+        seen.append(_blas_threads())
         a = np.arange(12.0).reshape(3, 4)
         np.testing.assert_allclose(a @ a.T, np.einsum("ij,kj->ik", a, a))
-    assert [get() for _, get in libs] == before
+        raise KeyError("x")
 
-
-def test_blas_threads_restores_after_an_exception():
-    libs = _loaded_openblas()
-    if not libs:
-        pytest.skip("no OpenBLAS found in this process")
-    before = [get() for _, get in libs]
+    monkeypatch.setattr(pipeline, "_run", fake_run)
     with pytest.raises(KeyError):
-        with blas_threads(1):
-            raise KeyError("x")
-    assert [get() for _, get in libs] == before
+        pipeline.run("log", "out")
+    assert seen == [[1] * len(before)]
+    assert _blas_threads() == before
 
 
 def _burn(seconds):
@@ -138,7 +144,7 @@ def test_bench_run_prints_figures_and_checks_results(lturn_log, tmp_path, capsys
 
 def test_bench_run_rejects_a_missing_log(tmp_path):
     from planar_vo.bench import run as bench
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     p = argparse.ArgumentParser()
     bench.add_arguments(p)
@@ -161,7 +167,7 @@ def _results(odo, frames, ahead: bool):
             odo.track(f)
         r = odo.process(f)
         out.append((None if r.step is None else (r.step.pose.tolist(), r.step.information.tolist(), r.step.status),
-                    [(m.yaw, m.sigma, m.track_id) for m in r.manhattan], r.info["matches"]))
+                    [(m.yaw, m.sigma, m.track_id) for m in r.manhattan], r.diagnostics.matches))
     return out
 
 

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.errors import ConfigError, InputError
-from planar_vo.geometry import mount_rotation, se2_to_matrix, tilt_from_gravity, wrap_quarter
-from planar_vo.io.synth import (SynthConfig, SynthRenderer, render_sequence, synth_intrinsics, synth_mount,
+from planar_vo.core.errors import ConfigError, InputError
+from planar_vo.core.geometry import mount_rotation, se2_to_matrix, tilt_from_gravity, wrap_quarter
+from planar_vo.sim.synth import (SynthConfig, SynthRenderer, render_sequence, synth_intrinsics, synth_mount,
                                 synth_trajectory, write_synth_log)
-from planar_vo.io.synth_scene import LABEL_CEILING, LABEL_FLOOR, LABEL_OTHER, LABEL_WALL, LAYOUTS
+from planar_vo.sim.synth_scene import LABEL_CEILING, LABEL_FLOOR, LABEL_OTHER, LABEL_WALL, LAYOUTS
 
 
 def small(width=240, height=135, **kw) -> SynthConfig:

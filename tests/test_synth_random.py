@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from planar_vo.bench.sweep import parse_seeds, plan, pool_normalised, spread, step_errors, summarise
-from planar_vo.errors import InputError
-from planar_vo.geometry import se2_compose, wrap_angle
-from planar_vo.io.synth import SynthConfig, render_sequence, synth_mount, synth_trajectory
-from planar_vo.io.synth_random import RANGES, describe, randomized_config
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import se2_compose, wrap_angle
+from planar_vo.sim.synth import SynthConfig, render_sequence, synth_mount, synth_trajectory
+from planar_vo.sim.synth_random import RANGES, describe, randomized_config
 from planar_vo.io.trajectory import Trajectory
 
 LAYOUTS = ("straight", "lturn", "loop", "two_frames", "hall")
@@ -106,7 +106,7 @@ def test_step_errors_against_ground_truth(tmp_path):
         T[:2, 3] = p[:2]
         cam.append(T @ T_bc)
     gt = Trajectory(np.array([0.0, 0.1, 0.2]), np.array(cam))
-    from planar_vo.geometry import se2_between
+    from planar_vo.core.geometry import se2_between
     rows = ["index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers"]
     offsets = {1: (0.01, 0.0, 0.0), 2: (0.0, -0.02, 0.001)}
     for k in (1, 2):

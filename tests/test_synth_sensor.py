@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planar_vo.errors import ConfigError
-from planar_vo.io.synth import (SENSOR_PRESETS, SynthConfig, SynthRenderer, _poses_at, _twists_at,
+from planar_vo.core.errors import ConfigError
+from planar_vo.sim.synth import (SENSOR_PRESETS, SynthConfig, SynthRenderer, _poses_at, _twists_at,
                                 render_sequence, with_sensor)
 
 

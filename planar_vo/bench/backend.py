@@ -43,10 +43,10 @@ def main(args) -> int:
 
     from planar_vo.backend.config import BackendConfig
     from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
-    from planar_vo.backend.simulate import (WrongAssociationInjector, simulate_manhattan_sequence,
+    from planar_vo.sim.simulate import (WrongAssociationInjector, simulate_manhattan_sequence,
                                             trajectory_errors)
-    from planar_vo.errors import InputError
-    from planar_vo.geometry import wrap_angle
+    from planar_vo.core.errors import InputError
+    from planar_vo.core.geometry import wrap_angle
 
     if args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")

@@ -61,11 +61,11 @@ def _run(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from planar_vo import geometry as g
-    from planar_vo.errors import InputError
+    from planar_vo.core import geometry as g
+    from planar_vo.core.errors import InputError
     from planar_vo.frontend.config import FeatureConfig, FrontendConfig
     from planar_vo.frontend.odometry import PlanarOdometry
-    from planar_vo.io.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
+    from planar_vo.sim.synth import SynthConfig, render_sequence, synth_intrinsics, synth_mount
 
     cv2.setNumThreads(1)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]

@@ -154,7 +154,7 @@ def _memory_run(tmp, size_gb: float, container: str = "mcap") -> bool:
 
 
 def _containers(text: str) -> list[str]:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     from planar_vo.io.rosbags_writer import CONTAINERS
     names = [c.strip() for c in text.split(",") if c.strip()]
     bad = [c for c in names if c not in CONTAINERS]
@@ -168,7 +168,7 @@ def main(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     tmp = Path(tempfile.mkdtemp(prefix="planar_vo_bench_io_"))
     need = args.size_gb * 1.1e9

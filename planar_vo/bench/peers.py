@@ -3,7 +3,7 @@
 ``planar-vo bench peers LOG [LOG ...] [--gt GT] [--frames N] [--json PATH]``
 
 For each log, one pass decodes the frames and hands each one to every peer in turn
-(:func:`planar_vo.peers.track`; nothing is cached, so long logs are fine); planar-vo
+(:func:`planar_vo.bench.peer_methods.track`; nothing is cached, so long logs are fine); planar-vo
 runs through its own pipeline (:func:`planar_vo.pipeline.run`) in the same process,
 without plot and poses.mcap. Per method: ATE RMSE, end-point drift (% of path), final
 yaw error, milliseconds per frame of the method's own processing (decoding excluded)
@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.errors import InputError, PlanarVOError
+from planar_vo.core.errors import InputError, PlanarVOError
 
 PLANAR_VO = "planar_vo"
-#: table order; the peers' names are the keys of planar_vo.peers.PEER_METHODS
+#: table order; the peers' names are the keys of planar_vo.bench.peer_methods.PEER_METHODS
 ALL_METHODS = (PLANAR_VO, "open3d_legacy", "open3d_tensor", "opencv")
 TENSOR = "open3d_tensor"
 TARGET_SPEEDUP = 3.0
@@ -78,11 +78,11 @@ def _errors(stamps, poses, gt) -> dict:
 
 def _align_to_gt(poses: np.ndarray, stamps: np.ndarray, gt) -> np.ndarray:
     """Peer poses re-based so that the first matched pose equals ground truth (for plots)."""
-    from planar_vo.metrics import associate
+    from planar_vo.io.trajectory import associate_stamps
 
     if gt is None:
         return poses
-    ia, ib = associate(stamps, gt.stamps)
+    ia, ib = associate_stamps(stamps, gt.stamps)
     if not len(ia):
         return poses
     A = gt.poses[ib[0]] @ np.linalg.inv(poses[ia[0]])
@@ -124,9 +124,9 @@ def compare_log(log_path, *, gt_arg: str | None = None, frames: int | None = Non
     """All figures for one log as a JSON-able dict (see :func:`format_table`)."""
     from planar_vo.config import load_config
     from planar_vo.io.trajectory import write_tum_trajectory
-    from planar_vo.io.types import Trajectory
+    from planar_vo.core.types import Trajectory
     from planar_vo.metrics import planarity
-    from planar_vo.peers import PeerOptions, PeerTracker, make_method
+    from planar_vo.bench.peer_methods import PeerOptions, PeerTracker, make_method
     from planar_vo.pipeline import open_input
     from planar_vo.progress import Progress
 

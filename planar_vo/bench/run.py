@@ -195,7 +195,7 @@ def format_log(res: dict) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     logs = [Path(p) for p in args.logs]
     for p in logs:

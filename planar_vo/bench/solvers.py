@@ -99,14 +99,22 @@ def _poselib_solver(kind: str):
 
 
 def _method_poselib(kind: str):
+    """PoseLib's minimal solver as a variant estimator: same sampling loop, scoring and
+    refinement as planar-vo's 2-point estimator, only :meth:`generate` differs."""
+    from planar_vo.frontend.estimators import (PlanarTwoPointEstimator, TwoPointOptions,
+                                               estimate_planar_motion_2pt)
+
     solver = _poselib_solver(kind)
-    size = 2 if kind == "2pt" else 3
+
+    class PoseLibEstimator(PlanarTwoPointEstimator):
+        sample_size = 2 if kind == "2pt" else 3
+
+        def generate(self, idx):
+            return solver(self.x1, self.x2, idx)
 
     def run(prob, thr, seed):
-        from planar_vo.frontend.estimators import TwoPointOptions, estimate_planar_motion_with_solver
-
-        m, _ = estimate_planar_motion_with_solver(prob.x1, prob.x2, solver, size,
-                                                  TwoPointOptions(max_error=thr, seed=seed))
+        m, _ = estimate_planar_motion_2pt(prob.x1, prob.x2, TwoPointOptions(max_error=thr, seed=seed),
+                                          estimator=PoseLibEstimator)
         return None if m is None else (m.R, m.t)
 
     return run
@@ -155,7 +163,7 @@ def _conditions(quick: bool):
 
 
 def run_condition(motion, noise_px, tilt, mode, trials, seed, cond_id, methods, points, threshold_px):
-    from planar_vo.frontend.solvers import make_planar_problem
+    from planar_vo.sim.problems import make_planar_problem
 
     thr_px = threshold_px if threshold_px is not None else max(1.0, 3.0 * noise_px)
     thr = thr_px / FOCAL
@@ -189,7 +197,7 @@ def timing(runs: int, seed: int, points: int) -> dict:
     import cv2
 
     from planar_vo.frontend.estimators import TwoPointOptions, estimate_planar_motion_2pt
-    from planar_vo.frontend.solvers import make_planar_problem
+    from planar_vo.sim.problems import make_planar_problem
 
     thr = 1.0 / FOCAL
     t2, t5, e2, e5 = [], [], [], []
@@ -340,7 +348,7 @@ def write_plots(rows: list[dict], methods: list[str], outdir: str) -> list[str]:
 
 
 def main(args) -> int:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
 
     trials = 40 if args.quick and args.trials == 1000 else args.trials
     if trials < 1:

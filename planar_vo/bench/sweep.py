@@ -3,7 +3,7 @@
 ``planar-vo bench sweep --seeds 1000-1007 [--layouts straight,lturn,loop,two_frames,hall]
 [--long K] [--cache DIR] [--out DIR] [--workers 2] [--config FILE]``
 
-For every seed and layout a randomized log (:func:`planar_vo.io.synth_random.randomized_config`)
+For every seed and layout a randomized log (:func:`planar_vo.sim.synth_random.randomized_config`)
 is rendered into the cache (kept, and reused while its parameters are the same: rendering
 is the slow part), run end to end with ``planar-vo run``'s code path and the given
 configuration, and compared with its ground truth. ``--long K`` makes K of the logs at
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_seeds(text: str) -> list[int]:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     try:
         a, _, b = text.partition("-")
         lo, hi = int(a), int(b or a)
@@ -66,7 +66,7 @@ def plan(seeds: list[int], layouts: list[str], n_long: int) -> list[tuple[int, s
 
 
 def log_name(cfg) -> str:
-    from planar_vo.io.synth_random import describe
+    from planar_vo.sim.synth_random import describe
 
     key = hashlib.sha1(json.dumps(describe(cfg), sort_keys=True).encode()).hexdigest()[:8]
     return f"{cfg.layout}_s{cfg.seed}_n{cfg.n_frames}_{key}"
@@ -76,7 +76,7 @@ def log_name(cfg) -> str:
 def run_one(seed: int, layout: str, min_frames: int | None, cache: str, out: str, config_path: str | None) -> dict:
     """Render (or reuse) one randomized log, run it, evaluate it; a dict for the summary.
     Runs in a worker process; never raises (a failure is reported with its reason)."""
-    from planar_vo.io.synth_random import describe, randomized_config
+    from planar_vo.sim.synth_random import describe, randomized_config
 
     rec: dict = {"seed": seed, "layout": layout}
     try:
@@ -86,7 +86,7 @@ def run_one(seed: int, layout: str, min_frames: int | None, cache: str, out: str
         log = Path(cache) / f"{name}.mcap"
         t0 = time.perf_counter()
         if not (log.exists() and Path(cache, f"{name}.gt.tum").exists()):
-            from planar_vo.io.synth import write_synth_log
+            from planar_vo.sim.synth import write_synth_log
             tmp = Path(cache) / f"{name}.part.mcap"
             paths = write_synth_log(cfg, tmp, progress=False)
             os.replace(paths["ground_truth"], Path(cache) / f"{name}.gt.tum")
@@ -103,7 +103,7 @@ def run_one(seed: int, layout: str, min_frames: int | None, cache: str, out: str
 def _run_and_evaluate(log: Path, cfg, run_dir: Path, config_path: str | None) -> dict:
     from planar_vo.config import load_config
     from planar_vo.evaluation import evaluate_run
-    from planar_vo.io.synth import synth_mount
+    from planar_vo.sim.synth import synth_mount
     from planar_vo.io.trajectory import read_tum_trajectory
     from planar_vo.pipeline import run
 
@@ -132,7 +132,7 @@ def _count(frames: dict, status: str) -> int:
 def step_errors(steps_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
     """Per status: ``{"n", "sum_sq": [x, y, theta]}`` of the steps' errors against the
     ground truth divided by their stated sigmas (summed squares, so logs pool exactly)."""
-    from planar_vo.geometry import se2_between, wrap_angle
+    from planar_vo.core.geometry import se2_between, wrap_angle
 
     rows = list(csv.DictReader(open(steps_csv)))
     inv_bc = np.linalg.inv(T_base_cam)
@@ -259,7 +259,7 @@ def format_markdown(summary: dict, records: list[dict], command: str) -> str:
 def main(args: argparse.Namespace) -> int:
     import sys
 
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     from planar_vo.io.atomic import write_text_atomic
 
     seeds = parse_seeds(args.seeds)

@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from planar_vo.errors import InputError, PartialResult
+    from planar_vo.core.errors import InputError, PartialResult
     from planar_vo.io.cliargs import open_log_from_args
     from planar_vo.io.mcap_writer import LogTopics
     from planar_vo.io.rosbags_writer import open_log_writer

@@ -27,7 +27,7 @@ def sample_log(samples_dir: Path, progress: bool = True) -> Path:
     import yaml
 
     from planar_vo.configtools import from_dict
-    from planar_vo.io.synth import SynthConfig, write_synth_log
+    from planar_vo.sim.synth import SynthConfig, open3d, write_synth_log
 
     text = resources.files("planar_vo.data").joinpath(RECIPE_NAME).read_text()
     cfg = from_dict(SynthConfig, yaml.safe_load(text))
@@ -36,6 +36,7 @@ def sample_log(samples_dir: Path, progress: bool = True) -> Path:
     if (out.exists() and out.with_suffix(".gt.tum").exists() and recipe_copy.exists()
             and recipe_copy.read_text() == text):
         return out
+    open3d()  # the renderer is the workshop's: say how to install it before anything else
     samples_dir.mkdir(parents=True, exist_ok=True)
     print(f"rendering the sample log {out} from the recipe {RECIPE_NAME} (first run only)")
     write_synth_log(cfg, out, progress=progress)
@@ -46,7 +47,7 @@ def sample_log(samples_dir: Path, progress: bool = True) -> Path:
 def main(args: argparse.Namespace) -> int:
     from planar_vo.commands.run import exit_code, print_summary
     from planar_vo.config import load_config
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     from planar_vo.evaluation import evaluate_run, format_table
     from planar_vo.pipeline import run
 

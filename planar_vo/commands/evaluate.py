@@ -16,13 +16,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from planar_vo.evaluation import evaluate_run, format_table, load_ground_truth
+    from planar_vo.io.atomic import write_text_atomic
 
     gt = load_ground_truth(args.gt) if args.gt else None
     result = evaluate_run(args.run_dir, gt, max_dt=args.max_dt)
     print(format_table(result))
     out = Path(args.json) if args.json else Path(args.run_dir) / "evaluation.json"
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    tmp.replace(out)
+    write_text_atomic(out, json.dumps(result, indent=2) + "\n")
     print(f"wrote {out}")
     return 0

@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from planar_vo.errors import InputError, PartialResult
+    from planar_vo.core.errors import InputError, PartialResult
     from planar_vo.io.cliargs import open_log_from_args
 
     with open_log_from_args(args) as log:

@@ -21,7 +21,8 @@ def add_input_arguments(p: argparse.ArgumentParser) -> None:
 
 def overrides_from_args(args: argparse.Namespace) -> dict:
     """Nested config overrides from the flags that were given."""
-    ov: dict = {"input": {}, "mount": {}, "output": {}}
+    ov: dict = {"input": {}, "output": {}}
+    levelling: dict = {}
     for k in ("color_topic", "depth_topic", "info_topic", "fx", "fy", "cx", "cy", "start", "stop", "stride"):
         v = getattr(args, k, None)
         if v is not None:
@@ -29,7 +30,9 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     for k in ("pitch_deg", "roll_deg", "height_m"):
         v = getattr(args, k, None)
         if v is not None:
-            ov["mount"][k] = v
+            levelling[k] = v
+    if levelling:
+        ov["frontend"] = {"levelling": levelling}
     if getattr(args, "online", False):
         ov["solver"] = "online"
     if getattr(args, "no_plot", False):

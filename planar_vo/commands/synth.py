@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pixels (default: ideal)")
     parser.add_argument("--randomize", action="store_true",
                         help="draw the scene, path wobble, mount, speed, rate, texture, lighting and sensor "
-                             "effects from --seed (planar_vo.io.synth_random.RANGES); --frames is then a "
+                             "effects from --seed (planar_vo.sim.synth_random.RANGES); --frames is then a "
                              "minimum, and the other scene flags are ignored")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
 
@@ -54,7 +54,7 @@ _FLAGS = {"layout": "--layout", "n_frames": "--frames", "texture": "--texture", 
 
 
 def _parse_size(text: str) -> tuple[int, int]:
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
@@ -65,10 +65,10 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from planar_vo.errors import ConfigError, InputError
+    from planar_vo.core.errors import ConfigError, InputError
     from planar_vo.io.codecs import COLOR_ENCODINGS, DEPTH_ENCODINGS
     from planar_vo.io.mcap_writer import PROFILES
-    from planar_vo.io.synth import SENSOR_PRESETS, SynthConfig, with_sensor, write_synth_log
+    from planar_vo.sim.synth import SENSOR_PRESETS, SynthConfig, with_sensor, write_synth_log
 
     if args.profile not in PROFILES:
         raise InputError(f"--profile {args.profile!r}: use one of {', '.join(PROFILES)}")
@@ -81,7 +81,7 @@ def main(args: argparse.Namespace) -> int:
     width, height = _parse_size(args.size)
     try:
         if args.randomize:
-            from planar_vo.io.synth_random import describe, randomized_config
+            from planar_vo.sim.synth_random import describe, randomized_config
 
             cfg = randomized_config(args.seed, args.layout, n_frames=args.frames)
             print("randomized: " + ", ".join(f"{k}={v}" for k, v in describe(cfg).items()))
@@ -112,7 +112,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _check_container(args: argparse.Namespace) -> None:
     """The output name fits the container: ``.mcap`` file, ``.bag`` file, or a new folder."""
-    from planar_vo.errors import InputError
+    from planar_vo.core.errors import InputError
     from planar_vo.io.rosbags_writer import CONTAINERS
     out = str(args.out).rstrip("/")
     if args.container not in CONTAINERS:

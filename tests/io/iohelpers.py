@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from planar_vo.io import messages as m
 from planar_vo.io import ros2_msgdefs
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame
 
 W, H = 64, 48
 INTR = CameraIntrinsics(W, H, 50.0, 51.0, 31.5, 23.5)

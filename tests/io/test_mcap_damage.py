@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from planar_vo.errors import InputError, PartialResult
-from planar_vo.geometry import rot_z
+from planar_vo.core.errors import InputError, PartialResult
+from planar_vo.core.geometry import rot_z
 from planar_vo.io import RGBDLogWriter, open_log
 from planar_vo.io import messages as m
 from planar_vo.io.codecs import encode_color, encode_depth

@@ -4,10 +4,10 @@ import os
 import numpy as np
 import pytest
 
-from planar_vo.geometry import matrix_from_pose7, mount_rotation
+from planar_vo.core.geometry import matrix_from_pose7, mount_rotation
 from planar_vo.io import Mount, RGBDLogWriter, open_log
 from planar_vo.io.codecs import depth_to_mm
-from planar_vo.io.types import CameraIntrinsics
+from planar_vo.core.types import CameraIntrinsics
 
 from iohelpers import INTR, make_frames
 

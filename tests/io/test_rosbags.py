@@ -14,9 +14,9 @@ import pytest
 
 from planar_vo.config import load_config
 from planar_vo.io import open_log
-from planar_vo.io.synth import SynthConfig, write_synth_log
+from planar_vo.sim.synth import SynthConfig, write_synth_log
 from planar_vo.io.trajectory import read_poses_mcap, read_tum_trajectory, write_poses_mcap
-from planar_vo.io.types import Trajectory
+from planar_vo.core.types import Trajectory
 
 from test_cli_io import one_line_error
 

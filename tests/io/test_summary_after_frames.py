@@ -3,7 +3,7 @@ and describes the log exactly as a scan of its own would, damaged logs included.
 import numpy as np
 import pytest
 
-from planar_vo.errors import PartialResult
+from planar_vo.core.errors import PartialResult
 from planar_vo.io import RGBDLogWriter, open_log
 from planar_vo.io import messages as m
 from planar_vo.io.codecs import encode_color, encode_depth

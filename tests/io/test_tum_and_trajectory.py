@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from planar_vo.errors import InputError
-from planar_vo.geometry import matrix_from_pose7
+from planar_vo.core.errors import InputError
+from planar_vo.core.geometry import matrix_from_pose7
 from planar_vo.io import Trajectory, open_log
 from planar_vo.io.trajectory import read_poses_mcap, read_tum_trajectory, write_poses_mcap, write_tum_trajectory
 from planar_vo.io.tum import TUM_INTRINSICS

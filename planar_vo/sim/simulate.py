@@ -17,9 +17,9 @@ import numpy as np
 
 from planar_vo.backend.association import AssociationOutcome, ManhattanAssociator
 from planar_vo.backend.config import BackendConfig
-from planar_vo.frontend.types import (STATUS_BRIDGED, STATUS_DPP, FrameResult, ManhattanObservation,
+from planar_vo.core.steps import (STATUS_BRIDGED, STATUS_DPP, FrameResult, ManhattanObservation,
                                       Step)
-from planar_vo.geometry import se2_between, wrap_angle, wrap_quarter
+from planar_vo.core.geometry import se2_between, wrap_angle, wrap_quarter
 
 
 @dataclass

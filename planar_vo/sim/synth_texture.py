@@ -1,4 +1,4 @@
-"""Procedural textures for the synthetic corridor renderer (:mod:`planar_vo.io.synth`).
+"""Procedural textures for the synthetic corridor renderer (:mod:`planar_vo.sim.synth`).
 
 Every material is a numpy/OpenCV-generated image with a mip pyramid, sampled by the
 renderer at the hit point's surface coordinates, so texture stays fixed to the world

@@ -1,4 +1,4 @@
-"""Scenes for the synthetic renderer (:mod:`planar_vo.io.synth`): floor plans, decorations,
+"""Scenes for the synthetic renderer (:mod:`planar_vo.sim.synth`): floor plans, decorations,
 triangle meshes and the robot's nominal path.
 
 World frame: z up, floor at z = 0, metres. A layout is built from a corridor centre line

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
-from planar_vo.io.synth import SynthConfig, min_path_length
+from planar_vo.sim.synth import SynthConfig, min_path_length
 
 #: Drawn uniformly within these (inclusive) unless stated otherwise.
 RANGES = {

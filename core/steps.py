@@ -1,13 +1,18 @@
 """What the front-end hands to the back-end and the pipeline.
 
 All angles in radians, distances in metres. Frames as pinned in
-:mod:`planar_vo.geometry` (``base`` is REP 103 base_link: x forward, y left, z up).
+:mod:`planar_vo.core.geometry` (``base`` is REP 103 base_link: x forward, y left, z up).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # annotations only: the types module stays a leaf
+    from planar_vo.frontend.levelling import LevellingState
+    from planar_vo.frontend.planarity import OutOfPlane
 
 #: Step status values.
 STATUS_DPP = "dpp"          # direction-plus-point: Manhattan yaw + 1-point translation (Sec. 2.1)
@@ -56,6 +61,35 @@ class Step:
 
 
 @dataclass
+class FrameDiagnostics:
+    """What the front-end saw and decided for one frame: for the report and tests only.
+
+    Counts of corners and matches, planes found, the levelling in use, and per estimator
+    what it returned (dicts of plain numbers); the back-end never reads it.
+    """
+
+    features: int = 0                 # corners in this frame
+    new_corners: int = 0              # of which detected in this frame
+    matches: int = 0                  # to the previous frame
+    matches_with_depth: int = 0       # of which with a depth reading in both frames
+    planes: int = 0                   # floor, ceiling and walls found
+    walls: int = 0
+    wall_fraction: float = 0.0        # image fraction covered by walls
+    floor_seen: bool = False
+    floor_fraction: float = 0.0
+    floor_normal_cam: list | None = None   # (3,) floor normal in the camera frame, when seen
+    camera_height_m: float | None = None   # floor offset, when seen
+    levelling: LevellingState | None = None  # the levelling after this frame's floor
+    out_of_plane: OutOfPlane | None = None   # 6-DoF fit on frames without a floor (planarity)
+    dpp: list[dict] = field(default_factory=list)  # direction-plus-point attempts, one per frame tried
+    two_point: dict | None = None     # the 2-point estimate: status, inliers, scale inliers, iterations
+    yaw_check: dict | None = None     # Manhattan yaw against the 2-point yaw (veto)
+    rejected: list[dict] = field(default_factory=list)  # estimates refused, and why
+    partial: dict | None = None       # a partial step: the prior's kind and the walls used
+    bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
+
+
+@dataclass
 class FrameResult:
     """Front-end output for one frame: the step into it and its Manhattan observations."""
 
@@ -64,4 +98,4 @@ class FrameResult:
     step: Step | None  # None for the first frame of a run
     manhattan: list[ManhattanObservation] = field(default_factory=list)  # dominant first
     timings: dict[str, float] = field(default_factory=dict)              # seconds per stage
-    info: dict = field(default_factory=dict)                             # diagnostics
+    diagnostics: FrameDiagnostics = field(default_factory=FrameDiagnostics)

@@ -1,11 +1,11 @@
 """Synthetic RGB-D corridor logs with exact ground truth.
 
-Scenes (:mod:`planar_vo.io.synth_scene`) are triangle meshes of floor, walls, ceiling,
+Scenes (:mod:`planar_vo.sim.synth_scene`) are triangle meshes of floor, walls, ceiling,
 doors, posters, boxes and pillars, ray cast on the CPU with open3d's
 ``RaycastingScene``; colour comes from procedural textures
-(:mod:`planar_vo.io.synth_texture`) sampled at the hit point's surface coordinates, so it
+(:mod:`planar_vo.sim.synth_texture`) sampled at the hit point's surface coordinates, so it
 is fixed to the world and trackable. The camera is a Kinect v2 at qhd on a robot driving
-a smooth planar path; frames follow :mod:`planar_vo.geometry` (optical ``cam``, REP 103
+a smooth planar path; frames follow :mod:`planar_vo.core.geometry` (optical ``cam``, REP 103
 ``base`` on the floor, world z up).
 
 Sensor model (Kinect v2-like; all switchable in :class:`SynthConfig`):
@@ -39,15 +39,28 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from planar_vo.errors import ConfigError, InputError
-from planar_vo.geometry import mount_rotation, se2_to_matrix, wrap_angle, wrap_quarter
-from planar_vo.io.synth_scene import (LABEL_FLOOR, LABEL_WALL, LAYOUTS, MAT_BOX, MAT_CEILING, MAT_CONCRETE,
+from planar_vo.core.errors import ConfigError, InputError
+from planar_vo.core.geometry import mount_rotation, se2_to_matrix, wrap_angle, wrap_quarter
+from planar_vo.sim.synth_scene import (LABEL_FLOOR, LABEL_WALL, LAYOUTS, MAT_BOX, MAT_CEILING, MAT_CONCRETE,
                                       MAT_DOOR, MAT_FLOOR, MAT_POSTER, MAT_WALL, Scene, build_scene,
                                       min_path_length)
-from planar_vo.io.synth_texture import (FLAT_COLORS, TEX_ATLAS, TEX_CEILING, TEX_CONCRETE, TEX_FLOOR, TEX_WALL,
+from planar_vo.sim.synth_texture import (FLAT_COLORS, TEX_ATLAS, TEX_CEILING, TEX_CONCRETE, TEX_FLOOR, TEX_WALL,
                                         TEXEL, TEXTURE_LEVELS, N_BOXES, N_DOORS, N_POSTERS, TextureSet,
                                         build_textures)
-from planar_vo.io.types import CameraIntrinsics, Mount, RGBDFrame
+from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
+
+#: How to get the renderer's one extra dependency.
+INSTALL_SIM = "pip install 'planar-vo[sim]' (setup.sh installs it)"
+
+
+def open3d():
+    """The open3d module (ray casting), or one clear error saying how to install it: it is the
+    workshop's extra (``planar-vo[sim]``), not a dependency of the product."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        raise InputError(f"the synthetic log renderer needs open3d, which is not installed: {INSTALL_SIM}") from None
+    return o3d
 
 __all__ = ["SynthConfig", "SynthFrame", "SynthRenderer", "render_sequence", "synth_trajectory", "with_sensor",
            "SENSOR_PRESETS",
@@ -68,7 +81,7 @@ class SynthConfig:
     with corners rounded to ``max(turn_radius, speed / max_yaw_rate)`` and a smooth
     sideways weave of amplitude ``weave`` metres. Mount: base_link on the floor, the
     optical centre ``cam_x`` forward and ``cam_height`` up, tilted by ``pitch_deg``
-    (down) and ``roll_deg`` (REP 103, :func:`planar_vo.geometry.mount_rotation`).
+    (down) and ``roll_deg`` (REP 103, :func:`planar_vo.core.geometry.mount_rotation`).
     """
 
     layout: str = "lturn"
@@ -345,7 +358,7 @@ class SynthRenderer:
     """
 
     def __init__(self, cfg: SynthConfig, scene: Scene | None = None, textures: TextureSet | None = None):
-        import open3d as o3d
+        o3d = open3d()
 
         self.cfg = cfg
         self.scene = scene if scene is not None else _scene_for(cfg)
@@ -482,7 +495,7 @@ class SynthRenderer:
 
     def _cast(self, pose_world_base) -> tuple:
         """Ray cast one view: ``(pose, T_world_cam, z (N,) float32, primitive ids (N,) uint32, seconds)``."""
-        import open3d as o3d
+        o3d = open3d()
 
         t0 = self._clock()
         pose = np.asarray(pose_world_base, dtype=np.float64).reshape(3)
@@ -870,7 +883,7 @@ def render_sequence(cfg: SynthConfig, frames: Iterable[int] | None = None) -> It
 
 def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfig) -> None:
     from planar_vo.io.trajectory import write_tum_trajectory
-    from planar_vo.io.types import Trajectory
+    from planar_vo.core.types import Trajectory
     write_tum_trajectory(path, Trajectory(stamps, poses),
                          header=f"planar-vo synth ground truth: camera optical frame in world (z up)\n"
                                 f"layout={cfg.layout} seed={cfg.seed} frames={cfg.n_frames} texture={cfg.texture}")

@@ -2,7 +2,7 @@
 
 These wrap other libraries' dense RGB-D odometry so that ``planar-vo bench peers``
 can run them on the same decoded frames as planar-vo. Each method is split into
-``prepare(frame)`` (convert one :class:`~planar_vo.io.types.RGBDFrame` into the
+``prepare(frame)`` (convert one :class:`~planar_vo.core.types.RGBDFrame` into the
 library's own image type, once per frame) and ``estimate(prev, curr, init)``, which
 returns the relative motion ``T_prev_curr`` (4, 4) float64: the pose of the current
 camera optical frame in the previous one, ``X_prev = T_prev_curr @ X_curr``.
@@ -38,7 +38,7 @@ from typing import Iterable
 
 import numpy as np
 
-from planar_vo.io.types import CameraIntrinsics, RGBDFrame
+from planar_vo.core.types import CameraIntrinsics, RGBDFrame
 
 
 @dataclass
@@ -90,13 +90,6 @@ def _valid_step(T: np.ndarray) -> str:
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4):
         return "non-orthonormal rotation"
     return ""
-
-
-def _invert(T: np.ndarray) -> np.ndarray:
-    Ti = np.eye(4)
-    Ti[:3, :3] = T[:3, :3].T
-    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return Ti
 
 
 class PeerMethod(ABC):
