@@ -18,6 +18,7 @@ from planar_vo.errors import PlanarVOError
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("planar_vo.commands.demo", "run the whole job on the shipped sample and evaluate it"),
     "run": ("planar_vo.commands.run", "estimate raw and smoothed trajectories from an RGB-D log"),
+    "batch": ("planar_vo.commands.batch", "run many logs as one Ray task each, resumable, with one summary"),
     "evaluate": ("planar_vo.commands.evaluate", "compare a run's trajectories with ground truth"),
     "info": ("planar_vo.commands.info", "show what a run would read from a log"),
     "convert": ("planar_vo.commands.convert", "convert a TUM RGB-D folder to MCAP"),
