@@ -51,14 +51,29 @@ class BatchResult:
     run_s: float
 
 
-def import_ray(local: bool):
-    """The ``ray`` module, or :class:`InputError` saying how to install it. ``local``: this
-    process will start its own Ray, bound to the loopback interface only."""
+def is_loopback(address: str | None) -> bool:
+    """True for no address (a local Ray) or one on this machine's loopback interface."""
+    if not address:
+        return True
+    host = address.split("://")[-1].rsplit(":", 1)[0].strip("[]")
+    return host == "localhost" or host == "::1" or host.startswith("127.")
+
+
+def import_ray(address: str | None):
+    """The ``ray`` module, or :class:`InputError` saying how to install it. Without an
+    address or with a loopback one, Ray runs on this machine's loopback interface only."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage reports sent anywhere
+    local = is_loopback(address)
     if local:
-        # Ray binds its servers to the node's address; with this it takes 127.0.0.1 (read
-        # when ray is imported, hence set before, and patched if ray was imported already).
+        # Ray binds its servers to the node's address and resolves 127.0.0.1 to the machine's
+        # network address; with this it keeps 127.0.0.1 (read when ray is imported, hence
+        # set before, and patched if ray was imported already).
         os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
+    if address and local and "RAY_AUTH_MODE" not in os.environ and (
+            "RAY_AUTH_TOKEN" in os.environ or (Path.home() / ".ray" / "auth_token").is_file()):
+        # Ray sends its token to a cluster it finds itself but not to one given by address;
+        # one on this machine is found here by address, so do what Ray does for it.
+        os.environ["RAY_AUTH_MODE"] = "token"
     try:
         import ray
     except ImportError:
@@ -125,7 +140,7 @@ def save_record(job: Job) -> None:
 def ray_session(ray, address: str | None, workers: int | None):
     """Ray for the batch: the session this process already has, else a connection to
     ``address``, else a local instance (loopback only, no dashboard) stopped on exit.
-    Yields ``{"mode", "start_s", "cpus"}``."""
+    Yields ``{"mode", "start_s", "cpus", "session_dir"}``."""
     info = {"mode": "existing", "start_s": 0.0}
     t0 = time.perf_counter()
     started = False
@@ -133,8 +148,9 @@ def ray_session(ray, address: str | None, workers: int | None):
         quiet = dict(log_to_driver=False, logging_level=logging.ERROR)
         if address:
             info["mode"] = "cluster"
+            check_reachable(address)
             try:
-                ray.init(address=address, **quiet)
+                ctx = ray.init(address=address, **quiet)
             except Exception as exc:  # noqa: BLE001 - ConnectionError, RuntimeError, ...
                 raise InputError(f"--address {address}: cannot connect to a Ray cluster "
                                  f"({_first_line(exc)}); start one with 'ray start --head' or leave "
@@ -142,9 +158,10 @@ def ray_session(ray, address: str | None, workers: int | None):
         else:
             info["mode"] = "local"
             cpus = os.cpu_count() or 1
-            ray.init(address="local", num_cpus=max(1, min(workers or cpus, cpus)), include_dashboard=False,
+            ctx = ray.init(address="local", num_cpus=max(1, min(workers or cpus, cpus)), include_dashboard=False,
                      object_store_memory=100 * 1024 ** 2, **quiet)
         started = True
+        info["session_dir"] = ctx.address_info.get("session_dir")
     info["start_s"] = round(time.perf_counter() - t0, 2)
     info["cpus"] = int(ray.cluster_resources().get("CPU", 1))
     try:
@@ -152,6 +169,21 @@ def ray_session(ray, address: str | None, workers: int | None):
     finally:
         if started:
             ray.shutdown()
+
+
+def check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail fast on a ``host:port`` that accepts no connection (``ray.init`` would retry for
+    minutes); other forms (``auto``, ``ray://``) are left to Ray."""
+    import socket
+
+    host, _, port = address.rpartition(":")
+    if "://" in address or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise InputError(f"--address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one "
+                         "with 'ray start --head' or leave --address out to run on this machine") from None
 
 
 def _first_line(exc: BaseException) -> str:
@@ -250,7 +282,7 @@ def run_batch(inputs: list[str], out: str | Path, config, *, address: str | None
 
     if workers is not None and workers < 1:
         raise InputError(f"--workers {workers}: must be at least 1")
-    ray = import_ray(local=not address)
+    ray = import_ray(address)
     t0 = time.perf_counter()
     out = Path(out).resolve()
     jobs = plan(inputs, out, dump_config(config), gt_from_logs)
