@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -78,12 +79,16 @@ def measure(logs: list[Path], work: Path) -> dict:
     for log in logs:
         t_seq += _timed([_exe(), "run", str(log), "--out", str(work / "seq" / names[log]), "--quiet"])
     out["sequential_run_s"] = round(t_seq, 2)
+    # the largest peak RSS of the children so far: the `planar-vo run` processes
+    out["run_peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, 1)
     for w in (1, 2):
         res = work / f"batch{w}"
         wall = _timed([_exe(), "batch", *map(str, logs), "--out", str(res), "--workers", str(w), "--quiet"])
-        summary = json.loads((res / "summary.json").read_text())["totals"]
+        doc = json.loads((res / "summary.json").read_text())
+        summary = doc["totals"]
         out[f"batch{w}"] = {"wall_s": round(wall, 2), "ray_start_s": summary["ray"]["start_s"],
-                            "frames": summary["frames_run"]}
+                            "frames": summary["frames_run"],
+                            "task_peak_rss_mb": max(r["peak_rss_mb"] or 0 for r in doc["logs"])}
     out["frames"] = out["batch1"]["frames"]
     out["max_difference"] = _max_difference(work, [names[p] for p in logs])
     return out
@@ -118,6 +123,8 @@ def format_figures(f: dict) -> str:
     b1, b2 = f["batch1"], f["batch2"]
     lines.append(f"2 workers against 1: {b1['wall_s'] / b2['wall_s']:.2f}x on the wall clock, "
                  f"{(b1['wall_s'] - b1['ray_start_s']) / (b2['wall_s'] - b2['ray_start_s']):.2f}x without Ray's start-up")
+    lines.append(f"peak memory: planar-vo run {f['run_peak_rss_mb']:.0f} MB, a batch task (Ray worker) "
+                 f"{max(b1['task_peak_rss_mb'], b2['task_peak_rss_mb']):.0f} MB (largest over the logs)")
     lines.append(f"results: largest difference between the three {f['max_difference']:.3g} "
                  f"({'identical' if f['max_difference'] <= 1e-9 else 'DIFFERENT'})")
     return "\n".join(lines)

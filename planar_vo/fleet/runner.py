@@ -291,11 +291,12 @@ def run_batch(inputs: list[str], out: str | Path, config, *, address: str | None
     info = {"mode": "not started (every log finished before)", "start_s": 0.0}
     interrupted = False
     t_run = time.perf_counter()
-    if any(j.record is None for j in jobs):
+    to_run = any(j.record is None for j in jobs)
+    if to_run:
         with ray_session(ray, address, workers) as info:
             bar.t0 = t_run = time.perf_counter()
             interrupted = execute(ray, jobs, config, gt_from_logs, workers or info["cpus"], bar)
-    bar.draw(jobs, 0, force=True)
+    bar.draw(jobs, 0, force=bar.tty or not to_run)  # elsewhere the last log's line was the last
     bar.close()
     result = BatchResult(jobs, interrupted, info, time.perf_counter() - t0, time.perf_counter() - t_run)
     write_summary(out, result)
