@@ -243,3 +243,32 @@ def test_find_logs_names_and_content_hash(tmp_path):
     h_tum = content_hash(tum)
     (tum / "rgb" / "1.png").write_bytes(b"x")
     assert content_hash(tum) != h_tum
+
+
+def test_a_worker_killed_mid_log_fails_that_log_only(fleet, ray_head, tmp_path):
+    """A log whose worker process dies (as under the kernel's OOM killer) is recorded with the
+    reason and the next log still runs; the worker is one the module's Ray head started."""
+    root, logs, paths = fleet
+    res = tmp_path / "res"
+    killed: list[int] = []
+
+    def kill_first_task():
+        t_end = time.time() + 300
+        while not killed and time.time() < t_end:
+            for pid in _processes_mentioning("ray::run_log"):
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+                return
+            time.sleep(0.02)
+    killer = threading.Thread(target=kill_first_task, daemon=True)
+    killer.start()
+    code = cli(["batch", str(paths["a_shift"]), str(paths["corridor"]), "--out", str(res), "--address", ray_head,
+                "--workers", "1", "--quiet"])
+    killer.join(1)
+    assert killed and code == 5
+    s = _summary(res)
+    assert s["by_name"]["shift"]["status"] == "failed"  # alone, a/shift.mcap keeps its own name
+    assert "worker process died" in s["by_name"]["shift"]["reason"]
+    assert s["by_name"]["corridor"]["status"] in ("ok", "not_estimated")
+    for traj in ("raw.tum", "smoothed.tum"):
+        _same_trajectory(res / "corridor" / traj, root / "ref" / "corridor" / traj)
