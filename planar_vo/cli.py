@@ -18,11 +18,12 @@ from planar_vo.core.errors import PlanarVOError
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("planar_vo.commands.demo", "run the whole job on the shipped sample and evaluate it"),
     "run": ("planar_vo.commands.run", "estimate raw and smoothed trajectories from an RGB-D log"),
+    "batch": ("planar_vo.commands.batch", "run many logs as one Ray task each, resumable, with one summary"),
     "evaluate": ("planar_vo.commands.evaluate", "compare a run's trajectories with ground truth"),
     "info": ("planar_vo.commands.info", "show what a run would read from a log"),
     "convert": ("planar_vo.commands.convert", "convert a TUM RGB-D folder to MCAP"),
     "synth": ("planar_vo.commands.synth", "render a synthetic corridor log with ground truth"),
-    "bench": ("planar_vo.commands.bench", "benchmarks: solvers, frontend, backend, io, peers, run"),
+    "bench": ("planar_vo.commands.bench", "benchmarks: solvers, frontend, backend, io, peers, run, sweep, batch"),
 }
 
 
