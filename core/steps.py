@@ -84,6 +84,7 @@ class FrameDiagnostics:
     dpp: list[dict] = field(default_factory=list)  # direction-plus-point attempts, one per frame tried
     two_point: dict | None = None     # the 2-point estimate: status, inliers, scale inliers, iterations
     yaw_check: dict | None = None     # Manhattan yaw against the 2-point yaw (veto)
+    group_changed: dict | None = None  # the frame's yaw disagreed with eq. 1 wall by wall: walls used
     rejected: list[dict] = field(default_factory=list)  # estimates refused, and why
     partial: dict | None = None       # a partial step: the prior's kind and the walls used
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"

@@ -154,12 +154,15 @@ class OdometryConfig:
     #: veto needs a disagreement beyond this many combined sigmas and this many degrees.
     dpp_veto_sigmas: float = 4.0
     dpp_veto_min_deg: float = 2.0
+    #: The frame's yaw is checked against eq. 1 applied wall by wall; beyond this many
+    #: sigmas the group's walls changed and the wall-by-wall yaw is used.
+    wall_yaw_check_sigmas: float = 3.0
     #: Partial steps: a wall seen in both frames fixes the translation along its normal
     #: (d2 - d1 = n2 . t); walls must match within these after the predicted motion.
     wall_match_deg: float = 3.0
     wall_match_m: float = 0.15
     wall_min_support: float = 0.03   # image fraction of a wall used for translation
-    wall_min_sigma_m: float = 0.005  # floor on a wall offset's sigma (depth bias, model error)
+    wall_min_sigma_m: float = 0.005  # floor on the sigma of a wall offset difference d2 - d1 (model error)
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1

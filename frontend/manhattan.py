@@ -31,9 +31,13 @@ class LocalFrame:
     ``heading``: rad in [-pi/4, pi/4), in the levelled camera's 2-D frame. ``sigma``: its
     standard deviation (rad). ``score``: image-area fraction of its walls.
     ``walls``: indices of its walls in the input list. ``track_id``: set by the tracker.
+    ``sigma_fit``: the part of ``sigma`` that changes from image to image (the walls' fit
+    noise; the systematic terms and the floor are common to consecutive views of the same
+    walls and cancel in a heading difference).
     ``prev_heading``: the track's reference heading carried into the previous frame (for
     the direction-plus-point yaw, eq. 1), else None for a new track; ``prev_sigma`` its
-    std and ``prev_score`` the score it was observed with. ``age``: consecutive frames the
+    std, ``prev_sigma_fit`` its image-to-image part and ``prev_score`` the score it was
+    observed with. ``age``: consecutive frames the
     track has been seen (a wall entering the view gives biased headings at first).
     """
 
@@ -49,6 +53,14 @@ class LocalFrame:
     #: frame-to-frame rotation the 3-D matches see, whatever the chain's earlier errors
     prev_local: float | None = None
     age: int = 1  # consecutive frames the track has been seen, this one included
+    sigma_fit: float = math.inf
+    prev_sigma_fit: float = math.inf
+
+    def step_sigma(self) -> float:
+        """Std (rad) of the direction-plus-point yaw ``heading - prev_heading`` (eq. 1): the
+        two views' image-to-image parts, plus what the steps the reference was carried over
+        added. Their common part (systematic, levelling) cancels in the difference."""
+        return math.hypot(self.sigma_fit, self.prev_sigma_fit)
 
 
 def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> list[LocalFrame]:
@@ -75,7 +87,7 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
             # first): a box or door 2 deg off the corridor is its own frame, not noise
             if d < tol and d <= c.group_sigmas * math.hypot(walls[i].yaw_sigma, sigmas[g]):
                 members.append(i)
-                centres[g], sigmas[g] = _mean_heading([walls[j] for j in members], centre, floor_sigma)
+                centres[g], sigmas[g], _ = _mean_heading([walls[j] for j in members], centre, floor_sigma)
                 break
         else:
             groups.append([i])
@@ -84,16 +96,18 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
     frames = []
     for members, centre in zip(groups, centres):
         ws = [walls[j] for j in members]
-        heading, sigma = _mean_heading(ws, centre, floor_sigma)
+        heading, sigma, sigma_fit = _mean_heading(ws, centre, floor_sigma)
         frames.append(LocalFrame(float(wrap_quarter(heading)), sigma, float(sum(w.support for w in ws)),
-                                 list(members)))
+                                 list(members), sigma_fit=sigma_fit))
     frames.sort(key=lambda f: -f.score)
     return frames
 
 
-def _mean_heading(walls: list[Plane], ref: float, floor_sigma: float) -> tuple[float, float]:
-    """Heading near ``ref`` from the walls' headings, weighted by their own sigmas, and its
-    sigma, inflated by the walls' scatter when they disagree beyond those sigmas.
+def _mean_heading(walls: list[Plane], ref: float, floor_sigma: float) -> tuple[float, float, float]:
+    """``(heading, sigma, sigma_fit)``: the heading near ``ref`` from the walls' headings,
+    weighted by their own sigmas; its sigma, inflated by the walls' scatter when they
+    disagree beyond those sigmas and floored; and the image-to-image part of that sigma
+    (the same weights over the walls' fit sigmas, :attr:`Plane.yaw_sigma_fit`).
 
     A wall's ``yaw_sigma`` carries a systematic term that grows as its angular extent
     shrinks, so a small box face or a far patch cannot outvote a long wall; weighting by
@@ -107,7 +121,9 @@ def _mean_heading(walls: list[Plane], ref: float, floor_sigma: float) -> tuple[f
     if len(walls) > 1:
         chi2 = float((wt * (d - mean) ** 2).sum())
         var *= max(1.0, chi2 / (len(walls) - 1))
-    return ref + mean, max(math.sqrt(var), floor_sigma)
+    fit = np.array([w.yaw_sigma_fit for w in walls])
+    var_fit = float((wt ** 2 * fit ** 2).sum()) / float(wt.sum()) ** 2
+    return ref + mean, max(math.sqrt(var), floor_sigma), math.sqrt(var_fit)
 
 
 @dataclass
@@ -121,6 +137,7 @@ class _Track:
     # frame by the steps since (their yaw variances summed in ref_var).
     ref_heading: float = 0.0
     ref_sigma: float = math.inf
+    ref_sigma_fit: float = math.inf
     ref_score: float = 0.0
     ref_var: float = 0.0
 
@@ -177,6 +194,7 @@ class ManhattanTracker:
             if math.isfinite(best.ref_sigma) and not ambiguous:
                 f.prev_heading = best.ref_heading
                 f.prev_sigma = math.sqrt(best.ref_sigma ** 2 + best.ref_var)
+                f.prev_sigma_fit = math.sqrt(best.ref_sigma_fit ** 2 + best.ref_var)
                 f.prev_score = best.ref_score
             f.age = best.age + 1 if consecutive and not ambiguous else 1
 
@@ -195,7 +213,8 @@ class ManhattanTracker:
                 t.heading = float(wrap_quarter(t.heading - yaw_step))
                 t.missed += 1
             if f is not None and f.sigma <= ref_max:
-                t.ref_heading, t.ref_sigma, t.ref_score, t.ref_var = f.heading, f.sigma, f.score, 0.0
+                t.ref_heading, t.ref_score, t.ref_var = f.heading, f.score, 0.0
+                t.ref_sigma, t.ref_sigma_fit = f.sigma, f.sigma_fit
             else:
                 t.ref_heading = float(wrap_quarter(t.ref_heading - yaw_step))
                 t.ref_var += yaw_var
@@ -204,6 +223,6 @@ class ManhattanTracker:
         for f in seen.values():
             t = _Track(f.track_id, f.heading, self._frame)
             if f.sigma <= ref_max:
-                t.ref_heading, t.ref_sigma, t.ref_score = f.heading, f.sigma, f.score
+                t.ref_heading, t.ref_sigma, t.ref_sigma_fit, t.ref_score = f.heading, f.sigma, f.sigma_fit, f.score
             kept.append(t)
         self._tracks = kept

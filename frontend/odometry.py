@@ -97,16 +97,15 @@ def lev_motion_to_base_step(yaw: float, t: np.ndarray, cov: np.ndarray | None,
     return step, J @ cov @ J.T
 
 
-def _offset_sigma(w: Plane, floor: float) -> float:
-    """Standard deviation (m) of a wall's offset ``d = 1 / |q|``: its fit covariance
-    ``cov_q`` (``q = normal / offset``), the depth errors correlated across the plane
-    (``systematic * rms_rel * d``, as in :attr:`Plane.yaw_sigma`: a far wall cut by the
-    range limit moves by centimetres), and a floor."""
+def _offset_var_fit(w: Plane) -> float:
+    """Variance (m^2) of the image-to-image part of a wall's offset ``d = 1 / |q|``: its
+    fit covariance ``cov_q`` (``q = normal / offset``) propagated. The depth errors
+    correlated across the plane (``systematic * rms_rel * d``, as in :attr:`Plane.yaw_sigma`)
+    are those of the same wall seen from nearly the same place in the other image: they
+    cancel in the offset difference ``d2 - d1`` a partial step uses."""
     q = w.normal / w.offset
     J = -q / float(np.linalg.norm(q)) ** 3
-    fit = max(float(J @ w.cov_q @ J), 0.0)
-    sys_ = w.systematic * w.rms_rel * w.offset
-    return math.sqrt(fit + sys_ ** 2 + floor ** 2)
+    return max(float(J @ w.cov_q @ J), 0.0)
 
 
 def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics) -> bool:
@@ -124,42 +123,68 @@ def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics) -> bool
     return False
 
 
-def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray,
-                     config) -> list[tuple[np.ndarray, float, float]]:
-    """Translation constraints ``(n (2,), delta, var)`` meaning ``n . t = delta`` (levelled
-    ``(t_x, t_z)``, metres) from vertical planes seen in both frames, given the step's yaw.
+def match_walls(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray, config,
+                max_offset: float = math.inf) -> list[tuple[Plane, Plane, np.ndarray]]:
+    """The same physical walls in two frames: ``(w1, w2, n2)`` with ``n2`` (2,) the unit
+    horizontal normal of ``w2`` in levelled ``(x, z)``.
 
     With ``X2 = R_y(yaw) X1 + t``, a plane ``n1 . X1 = d1`` becomes ``n2 . X2 = d1 + n2 . t``
-    with ``n2 = R_y(yaw) n1``: each wall fixes the translation along its normal,
-    ``n2 . t = d2 - d1`` (a side wall the sideways motion, an end wall the distance along).
-    Walls pair up when their normals agree within ``config.wall_match_deg`` and their
-    offsets within ``config.wall_match_m`` of the prior motion ``t_prior`` (2,); walls
-    beyond ``config.wall_max_offset_m`` are not used (near the sensor's range limit only
-    the points that noise brought nearer survive, and the offset is biased). Walls
-    with (anti)parallel normals are merged into one constraint: two nearly parallel
-    normals would otherwise turn their offset noise into a large motion along the wall.
+    with ``n2 = R_y(yaw) n1``. A wall of frame 2 pairs with the frame-1 wall whose rotated
+    normal agrees within ``config.wall_match_deg`` and whose offset agrees within
+    ``config.wall_match_m`` after the prior motion ``t_prior`` (2,), the closest offset
+    winning; walls under ``config.wall_min_support`` or beyond ``max_offset`` are left out.
     """
     c, s = math.cos(yaw), math.sin(yaw)
     R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     cos_gate = math.cos(math.radians(config.wall_match_deg))
+    usable1 = [w for w in walls1 if w.support >= config.wall_min_support and w.offset <= max_offset]
     pairs = []
     for w2 in walls2:
-        if w2.support < config.wall_min_support or w2.offset > config.wall_max_offset_m:
+        if w2.support < config.wall_min_support or w2.offset > max_offset:
             continue
         n2 = np.array([w2.normal[0], w2.normal[2]]) / math.hypot(w2.normal[0], w2.normal[2])
         best = None
-        for w1 in walls1:
-            if w1.support < config.wall_min_support or w1.offset > config.wall_max_offset_m:
-                continue
+        for w1 in usable1:
             m = R @ w1.normal
             gap = abs(w2.offset - w1.offset - float(n2 @ t_prior))
             if (m[0] * n2[0] + m[2] * n2[1]) / math.hypot(m[0], m[2]) >= cos_gate and gap <= config.wall_match_m \
                     and (best is None or gap < best[0]):
                 best = (gap, w1)
         if best is not None:
-            var = (_offset_sigma(best[1], config.wall_min_sigma_m) ** 2
-                   + _offset_sigma(w2, config.wall_min_sigma_m) ** 2)
-            pairs.append((n2, w2.offset - best[1].offset, var))
+            pairs.append((best[1], w2, n2))
+    return pairs
+
+
+def yaw_from_wall_pairs(pairs: list[tuple[Plane, Plane, np.ndarray]], yaw_hint: float) -> tuple[float, float]:
+    """Eq. 1 wall by wall: ``(yaw, sigma)`` (rad) from the heading change of each wall seen
+    in both frames (:func:`match_walls`), weighted by the walls' image-to-image sigmas.
+
+    A local frame's heading is a weighted mean over its walls; when walls a degree or two
+    apart (a box face, a wall of a neighbouring frame) join or leave the group, that mean
+    moves while nothing turned. The same wall in both views has no such shift.
+    """
+    y = np.array([yaw_from_manhattan_headings(w1.yaw, w2.yaw, yaw_hint) for w1, w2, _ in pairs])
+    var = np.array([w1.yaw_sigma_fit ** 2 + w2.yaw_sigma_fit ** 2 for w1, w2, _ in pairs])
+    wt = 1.0 / np.maximum(var, 1e-14)
+    d = np.asarray(geometry.wrap_angle(y - yaw_hint), dtype=float)
+    return yaw_hint + float((wt * d).sum() / wt.sum()), math.sqrt(1.0 / float(wt.sum()))
+
+
+def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray,
+                     config) -> list[tuple[np.ndarray, float, float]]:
+    """Translation constraints ``(n (2,), delta, var)`` meaning ``n . t = delta`` (levelled
+    ``(t_x, t_z)``, metres) from vertical planes seen in both frames, given the step's yaw.
+
+    Each wall pair of :func:`match_walls` fixes the translation along its normal,
+    ``n2 . t = d2 - d1`` (a side wall the sideways motion, an end wall the distance along).
+    Walls beyond ``config.wall_max_offset_m`` are not used (near the sensor's range limit
+    only the points that noise brought nearer survive, and the offset is biased). Walls
+    with (anti)parallel normals are merged into one constraint: two nearly parallel
+    normals would otherwise turn their offset noise into a large motion along the wall.
+    """
+    cos_gate = math.cos(math.radians(config.wall_match_deg))
+    pairs = [(n2, w2.offset - w1.offset, _offset_var_fit(w1) + _offset_var_fit(w2) + config.wall_min_sigma_m ** 2)
+             for w1, w2, n2 in match_walls(walls1, walls2, yaw, t_prior, config, config.wall_max_offset_m)]
     merged: list[list] = []  # [n_ref, sum w*delta, sum w] with delta signed along n_ref
     for n, delta, var in pairs:
         for m in merged:
@@ -366,7 +391,7 @@ class PlanarOdometry:
         c = self.config.odometry
         x1, x2, P1, P2, depth_ok = self._matched(prev, x_lev, P_lev, matches, info)
         mount_se2 = geometry.mount_se2(self.mount.T_base_cam)
-        dpp, mf_yaw = self._dpp(prev, frames, P1, P2, int(depth_ok.sum()), yaw_prior, info)
+        dpp, mf_yaw = self._dpp(prev, frames, walls, P1, P2, int(depth_ok.sum()), yaw_prior, info)
         two = self._two_point(x1, x2, P1, P2, info)
         dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
                     for e in (dpp, two))
@@ -401,7 +426,7 @@ class PlanarOdometry:
             info.out_of_plane = oop
         return x1, x2, P1, P2, depth_ok
 
-    def _dpp(self, prev: _Prev, frames, P1, P2, n_depth: int, yaw_prior: float, info):
+    def _dpp(self, prev: _Prev, frames, walls, P1, P2, n_depth: int, yaw_prior: float, info):
         """Direction-plus-point (Sec. 2.1): ``((motion, est, track, local yaw) or None, mf_yaw)``.
 
         The yaw is the difference of the two views' headings of one local Manhattan frame
@@ -417,19 +442,22 @@ class PlanarOdometry:
             if (f.prev_heading is None or f.age < c.dpp_min_track_age
                     or min(f.score, f.prev_score) < c.dpp_min_score):
                 continue
-            yaw_sigma = math.hypot(f.sigma, f.prev_sigma)
-            if yaw_sigma > math.radians(c.dpp_max_yaw_sigma_deg):
+            # Weak observations leave the step to the 2-point method; a strong one's yaw
+            # difference errs only by the image-to-image part of the two sigmas.
+            if math.hypot(f.sigma, f.prev_sigma) > math.radians(c.dpp_max_yaw_sigma_deg):
                 continue
+            yaw_sigma = f.step_sigma()
             yaw = yaw_from_manhattan_headings(f.prev_heading, f.heading, yaw_prior)
             # The matches see the frame-to-frame rotation; the step's yaw also takes back
             # what earlier steps got wrong since the reference (a few tenths of a degree,
             # which moves the next position by well under a millimetre).
             local = yaw_from_manhattan_headings(f.prev_local, f.heading, yaw_prior)
+            yaw, local, yaw_sigma = self._same_walls(prev, f, walls, yaw, local, yaw_sigma, info)
             if mf_yaw is None and f.score >= c.bridge_min_score:
                 mf_yaw = (yaw, yaw_sigma, local)
             motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
             info.dpp.append({"status": est.status, "inliers": est.num_inliers,
-                                               "track_id": f.track_id, "yaw_sigma": yaw_sigma})
+                             "track_id": f.track_id, "yaw_sigma": yaw_sigma})
             if motion is None or est.num_inliers < c.dpp_min_inliers:
                 continue
             if best is None or est.num_inliers > best[1].num_inliers:
@@ -439,6 +467,31 @@ class PlanarOdometry:
         if best is not None and best[1].num_inliers < c.dpp_min_inlier_ratio * n_depth:
             best = None
         return best, mf_yaw
+
+    def _same_walls(self, prev: _Prev, f: LocalFrame, walls, yaw: float, local: float, yaw_sigma: float, info):
+        """``(yaw, local, yaw_sigma)`` of the direction-plus-point step, checked wall by wall.
+
+        When the track's reference is its observation in the previous frame, the walls of
+        the frame in both views are paired (:func:`match_walls`) and eq. 1 is also applied
+        wall by wall. A disagreement beyond ``wall_yaw_check_sigmas`` means the group's
+        walls changed (a wall a degree or two off joined or left it): the wall-by-wall yaw
+        is used. Otherwise the frame's yaw stands, since it telescopes along the track.
+        """
+        pf = next((p for p in prev.frames if p.track_id == f.track_id), None)
+        if pf is None or f.prev_heading is None or f.prev_heading != pf.heading:
+            return yaw, local, yaw_sigma
+        t = self._last_motion[1] if self._last_motion is not None else np.zeros(3)
+        pairs = match_walls([prev.walls[i] for i in pf.walls], [walls[j] for j in f.walls], yaw,
+                            np.array([t[0], t[2]]), self.config.odometry)
+        if not pairs:
+            return yaw, local, yaw_sigma
+        y_w, s_w = yaw_from_wall_pairs(pairs, yaw)
+        d = float(geometry.wrap_angle(y_w - yaw))
+        if abs(d) <= self.config.odometry.wall_yaw_check_sigmas * math.hypot(s_w, yaw_sigma):
+            return yaw, local, yaw_sigma
+        info.group_changed = {"track_id": f.track_id, "frame_minus_walls_deg": -math.degrees(d),
+                              "pairs": len(pairs)}
+        return y_w, y_w, s_w
 
     def _two_point(self, x1, x2, P1, P2, info):
         """2-point homography with metric scale from depth (Sec. 2.2): ``(motion, est)`` or None."""
@@ -488,10 +541,12 @@ class PlanarOdometry:
         sb, s_theta = self._bridge_sigmas(how == "zero")
         if mf_yaw is None:
             self._since_yaw += 1
-            cov = np.diag([sb ** 2, sb ** 2, s_theta ** 2])
-            pose, _ = lev_motion_to_base_step(yaw, t, None, mount_se2)
+            # levelled (yaw, t_x, t_z), propagated like every other step: a camera ahead
+            # of base_link swings sideways with the yaw the guess gets wrong
+            cov = np.diag([s_theta ** 2, sb ** 2, sb ** 2])
+            pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
             info.bridge = how
-            return Step(pose, np.linalg.inv(cov), STATUS_BRIDGED, 0), (yaw, t, float(cov[2, 2]))
+            return Step(pose, np.linalg.inv(cov_b), STATUS_BRIDGED, 0), (yaw, t, s_theta ** 2)
         self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
         prior = np.array([t[0], t[2]])

@@ -69,12 +69,19 @@ class Plane:
         systematic term for depth errors correlated across the plane (sensor bias, range
         truncation), ``systematic * rms_rel / extent`` -- far, narrow walls are poor compasses.
         """
+        sys_ = self.systematic * self.rms_rel / max(self.extent, 1e-3)
+        return float(math.sqrt(self.yaw_sigma_fit ** 2 + sys_ ** 2))
+
+    @property
+    def yaw_sigma_fit(self) -> float:
+        """The part of :attr:`yaw_sigma` that changes from image to image: the fit's
+        ``cov_q`` propagated (the pixel noise). The systematic term is the same wall seen
+        from nearly the same place in the next image, so it cancels in a heading
+        *difference* (the direction-plus-point yaw, eq. 1); it does not in one heading."""
         q = self.normal / self.offset
         r2 = q[0] ** 2 + q[2] ** 2
         J = np.array([-q[2] / r2, 0.0, q[0] / r2])
-        fit = max(J @ self.cov_q @ J, 0.0)
-        sys_ = self.systematic * self.rms_rel / max(self.extent, 1e-3)
-        return float(math.sqrt(fit + sys_ ** 2))
+        return float(math.sqrt(max(J @ self.cov_q @ J, 0.0)))
 
     @property
     def tilt(self) -> float:

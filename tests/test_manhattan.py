@@ -132,3 +132,17 @@ def test_dominant_manhattan_yaw_on_synthetic_corridor(synth_frames):
     assert len(errs) >= 8
     assert np.median(errs) < 0.3, errs
     assert max(errs) < 1.5, errs
+
+
+def test_heading_sigma_splits_into_image_to_image_and_common_parts():
+    """A frame's sigma keeps the walls' systematic term and the floor (one heading); its
+    ``sigma_fit`` is the fit noise alone, what does not cancel in a heading difference."""
+    w = wall(D(5.0), 0.3, sigma_deg=0.02)
+    w.systematic, w.rms_rel, w.extent = 0.3, 0.01, 0.5      # systematic 0.006 rad = 0.34 deg
+    assert w.yaw_sigma_fit == pytest.approx(D(0.02), rel=1e-6)
+    assert w.yaw_sigma == pytest.approx(math.hypot(D(0.02), 0.006), rel=1e-6)
+    f = group_walls([w], ManhattanConfig())[0]
+    assert f.sigma == pytest.approx(w.yaw_sigma, rel=1e-6)
+    assert f.sigma_fit == pytest.approx(D(0.02), rel=1e-6)
+    f.prev_sigma_fit = D(0.03)
+    assert f.step_sigma() == pytest.approx(math.hypot(D(0.02), D(0.03)), rel=1e-9)

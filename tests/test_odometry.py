@@ -196,3 +196,37 @@ def test_input_validation():
     r1 = odo.process(RGBDFrame(1, 0.1, ok_c, ok_d))
     assert r0.step is None and r1.step.status == STATUS_BRIDGED
     assert r1.diagnostics.levelling.source == "initial" and not r1.diagnostics.floor_seen
+
+
+def test_wall_by_wall_yaw_is_blind_to_a_wall_group_changing():
+    """A local frame's heading is a mean over its walls: when a box face 2.5 deg off the
+    corridor leaves the group, the mean moves by ~1 deg while nothing turned (seen on a
+    randomized L turn: the chained heading took -1.2 deg over a few frames). Eq. 1 wall
+    by wall pairs the same physical walls and measures the true rotation."""
+    from planar_vo.frontend.config import OdometryConfig
+    from planar_vo.frontend.odometry import match_walls, yaw_from_wall_pairs
+    from planar_vo.frontend.planes import Plane
+
+    def wall(heading_deg, offset, sigma_deg=0.03):
+        h = math.radians(heading_deg)
+        n = np.array([-math.sin(h), 0.0, math.cos(h)])
+        s2 = (math.radians(sigma_deg) / offset) ** 2
+        return Plane("wall", n, offset, 0.2, 2000, 0.001, np.diag([s2, 0.0, s2]))
+
+    yaw, t = math.radians(1.5), np.array([0.02, 0.30])     # levelled (t_x, t_z)
+    c, s = math.cos(yaw), math.sin(yaw)
+    R = np.array([[c, s], [-s, c]])                        # R_y(yaw) on (x, z)
+    side, box = wall(90.0, 1.0), wall(2.5, 3.0)            # a side wall, a box face ahead
+    after = []
+    for w in (side, box):
+        n2 = R @ w.normal[[0, 2]]
+        after.append(Plane("wall", np.array([n2[0], 0.0, n2[1]]), w.offset + float(n2 @ t), 0.2, 2000, 0.001,
+                           w.cov_q))
+    cfg = OdometryConfig()
+    pairs = match_walls([side, box], [after[0]], 0.0, t, cfg)   # the box face left the view
+    assert len(pairs) == 1 and pairs[0][0] is side
+    y, sigma = yaw_from_wall_pairs(pairs, math.radians(-1.0))   # hint ~2.5 deg off, as a group mean gives
+    assert abs(math.degrees(y - yaw)) < 1e-9
+    assert sigma == pytest.approx(math.hypot(side.yaw_sigma_fit, after[0].yaw_sigma_fit), rel=1e-9)
+    both = match_walls([side, box], after, yaw, t, cfg)
+    assert [p[0] for p in both] == [side, box]
