@@ -157,6 +157,8 @@ class McapRGBDLog(RGBDLog):
         topics_of = defaultdict(list)
         for cid, kind in self._kinds.items():
             topics_of[kind].append(self._channels[cid].topic)
+        self._topics_of_kind = {k: sorted(set(v)) for k, v in topics_of.items() if k is not None}
+        self._odom_cache: dict = {}
         image_topics = sorted(set(topics_of[m.IMAGE] + topics_of[m.COMPRESSED]))
         info_topics = sorted(set(topics_of[m.CAMERA_INFO]))
         self.color_topic, self.depth_topic, self.info_topic = choose_topics(
@@ -513,6 +515,25 @@ class McapRGBDLog(RGBDLog):
                 return Mount(T, parent_frame=base, child_frame=camera)
         return None
 
+    def wheel_odometry(self, topic: str | None = None):
+        """Wheel odometry found in the log (see :mod:`planar_vo.io.wheel_odom` for the order
+        of sources) or None; ``topic`` (``--odom-topic``) overrides the choice. Read once."""
+        from planar_vo.io.wheel_odom import choose_odometry_topic, odometry_from_messages
+
+        if topic not in self._odom_cache:
+            found = choose_odometry_topic(self._topics_of_kind, topic, source=str(self.path))
+            odo = None
+            if found is not None:
+                name, kind = found
+                msgs = ((stamp, msg) for stamp, _, msg in self._messages_of(name, []))
+                schema = next((self._schemas[ch.schema_id].name for ch in self._channels.values()
+                               if ch.topic == name and ch.schema_id in self._schemas), "")
+                odo = odometry_from_messages(name, kind, msgs, schema.replace("/msg/", "/"))
+                if odo is None and topic is not None:
+                    raise InputError(f"{self.path}: --odom-topic {topic} carries no odom -> base_link pose")
+            self._odom_cache[topic] = odo
+        return self._odom_cache[topic]
+
     @property
     def ground_truth(self) -> Trajectory | None:
         if self._gt_cache is None:
@@ -578,6 +599,11 @@ class McapRGBDLog(RGBDLog):
             depth_frames_sampled=len(fractions))
         try:
             s.intrinsics, s.intrinsics_source = self._intrinsics_and_source()
+        except InputError as exc:
+            s.notes.append(str(exc))
+        try:
+            odo = self.wheel_odometry()
+            s.wheel_odometry = odo.describe() if odo is not None else None
         except InputError as exc:
             s.notes.append(str(exc))
         gt = self.ground_truth

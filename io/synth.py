@@ -875,13 +875,41 @@ def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfi
                                 f"layout={cfg.layout} seed={cfg.seed} frames={cfg.n_frames} texture={cfg.texture}")
 
 
+#: MCAP metadata record holding a synthetic log's wheel odometry parameters.
+WHEEL_ODOM_METADATA = "planar_vo.wheel_odometry"
+
+
+def _wheel_odom_samples(cfg: SynthConfig, scene: Scene, model) -> tuple:
+    """``(stamps (M,), T_odom_base (M, 3), rate_hz, twists (M, 3))`` of the simulated wheel
+    odometry: from the first frame to the last, at ``model.rate_hz`` but never slower than
+    the frames, driven by the true base path."""
+    from planar_vo.io.wheel_odom import se2_between_many, simulate_wheel_odometry
+
+    rate = max(float(model.rate_hz), cfg.rate_hz)
+    t_end = (cfg.n_frames - 1) / cfg.rate_hz
+    n = int(math.floor(t_end * rate + 1e-9)) + 1
+    t = np.arange(n) / rate
+    if t[-1] < t_end - 1e-9:
+        t = np.append(t, t_end)
+    P = simulate_wheel_odometry(_poses_at(cfg, scene, t), model)
+    tw = np.zeros_like(P)
+    if len(P) > 1:
+        tw[1:] = se2_between_many(P[:-1], P[1:]) / np.diff(t)[:, None]
+        tw[0] = tw[1]
+    return cfg.start_stamp + t, P, rate, tw
+
+
 def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
-                    depth_encoding: str = "png", progress: bool = True) -> dict:
+                    depth_encoding: str = "png", progress: bool = True, wheel_odom=None,
+                    wheel_odom_on: str = "odom") -> dict:
     """Render ``cfg`` into an MCAP log plus ``<out>.gt.tum``; returns ``{'log': ..., 'ground_truth': ...}``.
 
     The log looks like an iai_kinect2 recording (``/kinect2/qhd/...`` images and
     camera_info, the mount on ``/tf_static``, ground truth on ``/ground_truth``) in the
     ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
+    ``wheel_odom``: a :class:`planar_vo.io.wheel_odom.WheelOdomModel` adds wheel odometry
+    driven by the true path, on ``/odom`` (``wheel_odom_on="odom"``) or ``/tf``
+    (``"tf"``), its parameters in the MCAP metadata record ``planar_vo.wheel_odometry``.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -902,7 +930,22 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     except ValueError as exc:
         raise InputError(f"synthetic log {out}: {exc}") from None
 
+    odom = _wheel_odom_samples(cfg, renderer.scene, wheel_odom) if wheel_odom is not None else None
+    if odom is not None:
+        writer.add_metadata(WHEEL_ODOM_METADATA, {**wheel_odom.metadata(), "on": wheel_odom_on,
+                                                  "rate_hz": repr(odom[2])})
+    odom_next = [0]
+
+    def put_odom(until: float) -> None:
+        st, P, _, tw = odom
+        while odom_next[0] < len(st) and st[odom_next[0]] <= until:
+            i = odom_next[0]
+            writer.write_wheel_odometry(st[i], se2_to_matrix(P[i]), on=wheel_odom_on, twist=tw[i])
+            odom_next[0] += 1
+
     def put(frame: SynthFrame) -> None:
+        if odom is not None:
+            put_odom(frame.rgbd.stamp)
         writer.write(frame.rgbd)
         writer.write_ground_truth(frame.rgbd.stamp, frame.T_world_cam)
 
@@ -923,6 +966,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
                       end="", file=sys.stderr, flush=True)
         if pending is not None:
             pending.result()
+        if odom is not None:
+            put_odom(math.inf)
     if progress:
         print(file=sys.stderr)
     _write_tum(gt_path, stamps, T_wc, cfg)

@@ -34,6 +34,7 @@ from planar_vo.errors import InputError, PartialResult
 from planar_vo.geometry import base_poses_to_cam_matrices, mount_angles, mount_rotation, se2_to_matrix
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
+from planar_vo.wheel_fusion import motion_with_wheel_odometry, wheel_steps_for_run, write_wheel_outputs
 
 
 @dataclass
@@ -248,6 +249,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         mount = resolve_mount(log.mount, config)
         odo = PlanarOdometry(intr, mount, config.frontend)
         graph = IncrementalPlanarPoseGraph(config.backend) if config.solver == "online" else PlanarPoseGraph(config.backend)
+        wheel = wheel_steps_for_run(log, config)
         c = config.input
         bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
         stamps: list[float] = []
@@ -272,7 +274,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                     cpu["frontend"] += c1 - c0
                     for k, v in result.timings.items():
                         timings[f"frontend.{k}"] += v
-                    graph.add_frame(result)
+                    graph.add_frame(result, odometry=wheel.step(frame.stamp) if wheel else None)
                     t_wait = time.perf_counter()
                     timings["backend"] += t_wait - t1
                     cpu["backend"] += time.thread_time() - c1
@@ -319,6 +321,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     t0, c0 = time.perf_counter(), time.thread_time()
     files = _write_outputs(out, config, stamps, raw, smoothed, T_base_cam, gt)
     files["steps"] = _write_steps(out / "steps.csv", steps)
+    wheel_section, wheel_files = write_wheel_outputs(out, wheel, stamps, T_base_cam, getattr(graph, "stats", {}))
+    files.update(wheel_files)
     timings["write"] += time.perf_counter() - t0
     cpu["write"] += time.thread_time() - c0
     wall = time.perf_counter() - t_start
@@ -343,10 +347,11 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
             "failed": len(stats.get("corrupt", [])),
             "failed_frames": [{"frame": str(k), "reason": str(r)} for k, r in stats.get("corrupt", [])],
         },
-        "motion": motion_report(statuses),
+        "motion": motion_with_wheel_odometry(motion_report(statuses), wheel_section),
         "mount": _mount_report(odo.mount),
         "planarity": _planarity_report(frame_infos, levelled=_is_levelled(mount, frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
+        "wheel_odometry": _jsonable(wheel_section),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
         "timings_ms_per_frame": {k: round(1000 * v / n, 3) for k, v in sorted(timings.items())},
