@@ -60,10 +60,10 @@ class BackendConfig:
     #: so that good vision steps (mm, 0.05 deg) and the Manhattan headings dominate where
     #: they exist. The messages' covariances are ignored (drivers often fill in constants).
     wheel_odom_sigma_min_m: float = 0.002
-    wheel_odom_sigma_per_m: float = 0.1
+    wheel_odom_sigma_per_m: float = 0.3
     wheel_odom_sigma_min_deg: float = 0.05
-    wheel_odom_sigma_deg_per_m: float = 2.0
-    wheel_odom_sigma_per_rad: float = 0.1
+    wheel_odom_sigma_deg_per_m: float = 5.0
+    wheel_odom_sigma_per_rad: float = 0.2
     #: A bridged step (no estimator had the motion) is left out when the wheel odometry
     #: covers it: the odometry carries the graph instead of the constant-velocity guess.
     wheel_odom_replaces_bridge: bool = True

@@ -134,6 +134,10 @@ def _frame(name: str) -> str:
     return name.lstrip("/")
 
 
+def _is_ground_truth(topic: str) -> bool:
+    return "ground_truth" in topic or "groundtruth" in topic
+
+
 def choose_odometry_topic(topics_by_kind: dict, override: str | None = None,
                           source: str = "log") -> tuple[str, str] | None:
     """``(topic, kind)`` of the wheel odometry among a log's topics, or None.
@@ -147,7 +151,7 @@ def choose_odometry_topic(topics_by_kind: dict, override: str | None = None,
             if override in topics_by_kind.get(kind, ()):
                 return override, kind
         cands = sorted({t for k in SOURCE_KINDS for t in topics_by_kind.get(k, ())
-                        if not t.endswith("tf_static")})
+                        if not t.endswith("tf_static") and not _is_ground_truth(t)})
         raise InputError(f"{source}: --odom-topic {override} is not an odometry, /tf or pose topic of the log "
                          f"(candidates: {', '.join(cands) or 'none'})")
     odo = sorted(topics_by_kind.get(m.ODOMETRY, ()))
@@ -156,8 +160,7 @@ def choose_odometry_topic(topics_by_kind: dict, override: str | None = None,
     tf = sorted(t for t in topics_by_kind.get(m.TRANSFORMS, ()) if not t.endswith("tf_static"))
     if tf:
         return ("/tf" if "/tf" in tf else tf[0]), m.TRANSFORMS
-    poses = sorted(t for t in topics_by_kind.get(m.POSE, ())
-                   if "odom" in t.lower() and "ground_truth" not in t and "groundtruth" not in t)
+    poses = sorted(t for t in topics_by_kind.get(m.POSE, ()) if "odom" in t.lower() and not _is_ground_truth(t))
     if poses:
         return ("/odom" if "/odom" in poses else poses[0]), m.POSE
     return None
@@ -245,7 +248,9 @@ def simulate_wheel_odometry(poses_world_base: np.ndarray, model: WheelOdomModel)
     for ``model.seed``."""
     P = np.asarray(poses_world_base, dtype=np.float64).reshape(-1, 3)
     rel = se2_between_many(P[:-1], P[1:])
-    ds, dth = rel[:, 0], rel[:, 2]   # a wheeled base moves along its heading: lateral ~ 0
+    dth = rel[:, 2]
+    # arc length of each increment, taken as a circular arc (a wheeled base moves along its heading)
+    ds = np.sign(rel[:, 0]) * np.hypot(rel[:, 0], rel[:, 1]) / np.sinc(dth / (2.0 * np.pi))
     B = model.wheelbase_m
     rng = np.random.default_rng([int(model.seed), 2031])
     wheels = np.column_stack([ds - 0.5 * B * dth, ds + 0.5 * B * dth])
@@ -254,7 +259,8 @@ def simulate_wheel_odometry(poses_world_base: np.ndarray, model: WheelOdomModel)
     dth_o = (read[:, 1] - read[:, 0]) * (1.0 + model.wheelbase) / B \
         + math.radians(model.drift_deg_per_m) * np.abs(ds)
     theta = np.concatenate([[0.0], np.cumsum(dth_o)])
-    mid = theta[:-1] + 0.5 * dth_o   # midpoint heading of each increment
-    x = np.concatenate([[0.0], np.cumsum(ds_o * np.cos(mid))])
-    y = np.concatenate([[0.0], np.cumsum(ds_o * np.sin(mid))])
+    mid = theta[:-1] + 0.5 * dth_o   # an arc's chord points along its midpoint heading
+    chord = ds_o * np.sinc(dth_o / (2.0 * np.pi))
+    x = np.concatenate([[0.0], np.cumsum(chord * np.cos(mid))])
+    y = np.concatenate([[0.0], np.cumsum(chord * np.sin(mid))])
     return np.column_stack([x, y, wrap_angle(theta)])

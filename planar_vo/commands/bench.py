@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep."""
+"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, wheel."""
 from __future__ import annotations
 
 import argparse
@@ -13,6 +13,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
     "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),
     "sweep": ("planar_vo.bench.sweep", "accuracy over randomized scenes: drift and yaw distributions per layout"),
+    "wheel": ("planar_vo.bench.wheel", "wheel odometry fusion over randomized scenes: with and without it"),
 }
 
 
