@@ -64,6 +64,9 @@ class BackendConfig:
     wheel_odom_sigma_min_deg: float = 0.05
     wheel_odom_sigma_deg_per_m: float = 5.0
     wheel_odom_sigma_per_rad: float = 0.2
+    #: Estimate the odometry's scale, turn scale and heading drift from the steps vision
+    #: measured and correct each odometry step with them (planar_vo.backend.wheel).
+    wheel_odom_calibrate: bool = True
     #: A bridged step (no estimator had the motion) is left out when the wheel odometry
     #: covers it: the odometry carries the graph instead of the constant-velocity guess.
     wheel_odom_replaces_bridge: bool = True

@@ -14,6 +14,14 @@ rotation ``r`` it turns (configurable in :class:`BackendConfig`)::
     sigma_theta       = hypot(wheel_odom_sigma_min_deg, wheel_odom_sigma_deg_per_m * d,
                               wheel_odom_sigma_per_rad * r)
 
+Calibration (``wheel_odom_calibrate``, default on): the odometry's scale, turn scale and
+heading drift per metre are estimated on the way from the steps vision measured
+(:class:`WheelCalibration`) and taken out of each odometry step before it enters the
+graph, so that where vision is good the odometry agrees with it and where vision has
+nothing it carries on at vision's scale. (An earlier variant kept the raw odometry with
+these sigmas: on a low-texture straight corridor it doubled the smoothed drift, 0.42 ->
+0.88 %, by pulling the path towards the odometry's 2 % scale error.)
+
 Pure: no file I/O.
 """
 from __future__ import annotations
@@ -23,9 +31,10 @@ import math
 import numpy as np
 
 from planar_vo.backend.config import BackendConfig
+from planar_vo.frontend.types import STATUS_2PT, STATUS_DPP
 from planar_vo.geometry import se2_between, wrap_angle
 
-__all__ = ["WheelSteps", "wheel_step_information", "fuse_steps"]
+__all__ = ["WheelSteps", "WheelCalibration", "wheel_step_information", "fuse_steps"]
 
 
 def wheel_step_information(step: np.ndarray, config: BackendConfig) -> np.ndarray:
@@ -50,6 +59,71 @@ def fuse_steps(p1: np.ndarray, info1: np.ndarray, p2: np.ndarray, info2: np.ndar
     return p, info
 
 
+class WheelCalibration:
+    """The odometry's systematic errors, estimated from the steps vision measured.
+
+    Model (that of :class:`planar_vo.io.wheel_odom.WheelOdomModel`): an odometry step of
+    true length ``d`` and rotation ``theta`` reads ``(1 + scale) d`` and
+    ``(1 + turn) theta + drift * d``. ``scale`` is the ratio of the summed forward motions
+    over the steps whose translation vision measured (direction-plus-point, 2-point; steps
+    on which the two differ by more than ``gate`` of the odometry's step + 5 mm are left out); ``turn`` and ``drift`` a least
+    squares fit of the per-step heading differences against the odometry's turn and
+    distance, regularised towards 0 as if one step of ``prior_rad`` turning and one of
+    ``prior_m`` straight travel had shown no error (so that the weave of a straight
+    corridor, a few 0.1 deg per step, does not decide the turn scale; a 90 deg turn does). Nothing is corrected
+    before vision measured ``min_m`` metres.
+    """
+
+    def __init__(self, min_m: float = 1.0, prior_rad: float = 0.1, prior_m: float = 0.01,
+                 gate: float = 0.5, max_scale: float = 0.2):
+        self.min_m, self.gate, self.max_scale = min_m, gate, max_scale
+        self.len_odo = self.len_vis = 0.0
+        self.A = np.diag([prior_rad ** 2, prior_m ** 2])
+        self.b = np.zeros(2)
+
+    def observe(self, odo: np.ndarray, vis: np.ndarray) -> None:
+        """One step measured by both: odometry ``odo`` and vision ``vis``, (3,) each."""
+        # forward components: unbiased under vision's zero-mean noise (a norm is not)
+        lo, lv = float(odo[0]), float(vis[0])
+        if abs(lv - lo) > self.gate * abs(lo) + 0.005:
+            return
+        self.len_odo += lo
+        self.len_vis += lv
+        # regressors from the odometry, whose per-step noise is far below vision's: with
+        # vision's turn as regressor its noise biased the fitted turn scale to -0.2 on a
+        # straight corridor (errors in variables)
+        a = np.array([float(odo[2]), abs(lo)])
+        self.A += np.outer(a, a)  # heading regressors: vision's turn and the distance
+        self.b += a * float(wrap_angle(odo[2] - vis[2]))
+
+    @property
+    def scale(self) -> float:
+        if self.len_vis < self.min_m:
+            return 0.0
+        return float(np.clip(self.len_odo / self.len_vis - 1.0, -self.max_scale, self.max_scale))
+
+    @property
+    def turn_and_drift(self) -> tuple[float, float]:
+        """``(f, drift rad/m)`` of ``theta_odo - theta = f theta_odo + drift d``
+        (``f = turn / (1 + turn)``)."""
+        if self.len_vis < self.min_m:
+            return 0.0, 0.0
+        f, drift = np.linalg.solve(self.A, self.b)
+        return float(np.clip(f, -self.max_scale, self.max_scale)), float(drift)
+
+    def correct(self, odo: np.ndarray) -> np.ndarray:
+        """The odometry step ``odo`` (3,) with the estimated errors taken out."""
+        s = self.scale
+        f, drift = self.turn_and_drift
+        theta = float(odo[2]) * (1.0 - f) - drift * abs(float(odo[0]))
+        return np.array([odo[0] / (1.0 + s), odo[1] / (1.0 + s), theta])
+
+    def report(self) -> dict:
+        f, drift = self.turn_and_drift
+        return {"scale": round(self.scale, 5), "turn_scale": round(f / (1.0 - f), 5),
+                "drift_deg_per_m": round(math.degrees(drift), 4), "vision_m": round(self.len_vis, 3)}
+
+
 class WheelSteps:
     """Odometry steps between consecutive frame stamps.
 
@@ -63,11 +137,15 @@ class WheelSteps:
     def __init__(self, odometry, config: BackendConfig | None = None):
         self.odometry = odometry
         self.config = config or BackendConfig()
+        self.calibration = WheelCalibration() if self.config.wheel_odom_calibrate else None
         self._last: np.ndarray | None = None
         self.steps = 0        # steps returned
         self.uncovered = 0    # frames after the first without an odometry step
 
-    def step(self, stamp: float) -> tuple[np.ndarray, np.ndarray] | None:
+    def step(self, stamp: float, result=None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The step into the frame at ``stamp``; ``result``: that frame's
+        :class:`FrameResult`, whose step (when vision measured its translation) updates the
+        calibration before it corrects this odometry step."""
         pose = self.odometry.at([stamp])[0]
         prev, self._last = self._last, (pose if np.all(np.isfinite(pose)) else None)
         if prev is None or self._last is None:
@@ -75,5 +153,10 @@ class WheelSteps:
                 self.uncovered += 1
             return None
         d = se2_between(prev, self._last)
+        if self.calibration is not None:
+            st = getattr(result, "step", None)
+            if st is not None and st.status in (STATUS_DPP, STATUS_2PT):
+                self.calibration.observe(d, np.asarray(st.pose, dtype=np.float64))
+            d = self.calibration.correct(d)
         self.steps += 1
         return d, wheel_step_information(d, self.config)

@@ -274,7 +274,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                     cpu["frontend"] += c1 - c0
                     for k, v in result.timings.items():
                         timings[f"frontend.{k}"] += v
-                    graph.add_frame(result, odometry=wheel.step(frame.stamp) if wheel else None)
+                    graph.add_frame(result, odometry=wheel.step(frame.stamp, result) if wheel else None)
                     t_wait = time.perf_counter()
                     timings["backend"] += t_wait - t1
                     cpu["backend"] += time.thread_time() - c1
