@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from planar_vo.backend.config import BackendConfig
-from planar_vo.backend.wheel import WheelSteps, fuse_steps, wheel_step_information
+from planar_vo.backend.wheel import WheelCalibration, WheelSteps, fuse_steps, wheel_step_information
 from planar_vo.config import load_config
 from planar_vo.errors import InputError
 from planar_vo.evaluation import evaluate_run, format_table
@@ -110,6 +110,24 @@ def test_wheel_steps_between_frame_stamps():
     assert steps.step(11.0) is None and steps.uncovered == 1
 
 
+def test_calibration_recovers_scale_turn_and_drift_from_vision_steps():
+    """Steps of a curvy path seen exactly by vision and by an odometry with +2 % scale,
+    +3 % turn scale and 0.5 deg/m drift: the calibration finds them and removes them."""
+    rng = np.random.default_rng(1)
+    cal = WheelCalibration()
+    for _ in range(300):
+        d, th = 0.05, rng.uniform(-0.08, 0.08)
+        vis = np.array([d, 0.0, th])
+        odo = np.array([1.02 * d, 0.0, 1.02 * 1.03 * th + math.radians(0.5) * 1.02 * d])
+        cal.observe(odo, vis)
+    rep = cal.report()
+    assert rep["scale"] == pytest.approx(0.02, abs=1e-6)
+    assert rep["turn_scale"] == pytest.approx(1.02 * 1.03 - 1, abs=2e-3)   # shrunk a little by the prior
+    assert rep["drift_deg_per_m"] == pytest.approx(0.5 / 1.02, abs=0.02)
+    np.testing.assert_allclose(cal.correct(odo), vis, atol=2e-4)
+    assert WheelCalibration().scale == 0.0   # nothing corrected before vision measured min_m
+
+
 # ------------------------------------------------------------------ logs
 
 @pytest.mark.parametrize("profile, on, source", [("ros2", "odom", "nav_msgs/Odometry"),
@@ -200,4 +218,14 @@ def test_textured_corridor_odometry_does_not_make_drift_worse(textured_log, tmp_
     assert fused["smoothed"]["endpoint_drift_pct"] <= without["smoothed"]["endpoint_drift_pct"] + EPS_PCT
     assert abs(fused["smoothed"]["final_yaw_error_deg"]) <= abs(without["smoothed"]["final_yaw_error_deg"]) + 0.05
     assert fused["raw"] == without["raw"]
+
+
+def test_textured_corridor_calibrates_the_odometry(textured_log, tmp_path):
+    """Vision measures the odometry's systematic errors (+2 % scale, turns +5.06 % from
+    scale and wheelbase, 0.5 deg/m heading drift) on the way."""
+    result, _ = _run(textured_log, tmp_path / "cal")
+    cal = result.report["wheel_odometry"]["calibration"]
+    assert cal["scale"] == pytest.approx(0.02, abs=0.005)
+    assert cal["turn_scale"] == pytest.approx(1.02 * 1.03 - 1, abs=0.015)
+    assert cal["drift_deg_per_m"] == pytest.approx(0.5, abs=0.2)
 

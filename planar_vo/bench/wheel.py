@@ -101,7 +101,11 @@ def main(args: argparse.Namespace) -> int:
     for seed in parse_seeds(args.seeds):
         for layout in args.layouts.split(","):
             for texture in args.textures.split(","):
-                recs.append(run_one(seed, layout, texture, args.frames, cache, out, args.config))
+                try:
+                    recs.append(run_one(seed, layout, texture, args.frames, cache, out, args.config))
+                except Exception as exc:  # noqa: BLE001 - one log's failure must not stop the bench
+                    print(f"| {layout} s{seed} {texture} | failed: {type(exc).__name__}: {exc} |", flush=True)
+                    continue
                 print(format_rows(recs[-1:]).splitlines()[-1], flush=True)
                 (out / "wheel.json").write_text(json.dumps(recs, indent=2) + "\n")
     print(format_rows(recs))
