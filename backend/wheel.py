@@ -66,8 +66,8 @@ class WheelCalibration:
     true length ``d`` and rotation ``theta`` reads ``(1 + scale) d`` and
     ``(1 + turn) theta + drift * d``. ``scale`` is the ratio of the summed forward motions
     over the steps whose translation vision measured (direction-plus-point, 2-point; steps
-    on which the two differ by more than ``gate`` of the odometry's step + 5 mm are left out); ``turn`` and ``drift`` a least
-    squares fit of the per-step heading differences against the odometry's turn and
+    on which the two differ by more than ``gate`` of the odometry's step + 5 mm are left
+    out); ``turn`` and ``drift`` a least squares fit of the per-step heading differences against the odometry's turn and
     distance, regularised towards 0 as if one step of ``prior_rad`` turning and one of
     ``prior_m`` straight travel had shown no error (so that the weave of a straight
     corridor, a few 0.1 deg per step, does not decide the turn scale; a 90 deg turn does). Nothing is corrected

@@ -102,6 +102,7 @@ class McapRGBDLog(RGBDLog):
         super().__init__(path)
         self.sync_tolerance = float(sync_tolerance)
         self._intrinsics_override = intrinsics
+        self._odom_cache: dict = {}  # --odom-topic -> WheelOdometry or None
         self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
         try:
             self._open(color_topic, depth_topic, info_topic)
@@ -154,11 +155,9 @@ class McapRGBDLog(RGBDLog):
         for cid, ch in self._channels.items():
             schema = self._schemas.get(ch.schema_id)
             self._kinds[cid] = m.schema_kind(schema.name) if schema is not None else None
-        topics_of = defaultdict(list)
+        topics_of = self._topics_of_kind = defaultdict(list)  # kind -> topics
         for cid, kind in self._kinds.items():
             topics_of[kind].append(self._channels[cid].topic)
-        self._topics_of_kind = {k: sorted(set(v)) for k, v in topics_of.items() if k is not None}
-        self._odom_cache: dict = {}
         image_topics = sorted(set(topics_of[m.IMAGE] + topics_of[m.COMPRESSED]))
         info_topics = sorted(set(topics_of[m.CAMERA_INFO]))
         self.color_topic, self.depth_topic, self.info_topic = choose_topics(

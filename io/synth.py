@@ -899,6 +899,23 @@ def _wheel_odom_samples(cfg: SynthConfig, scene: Scene, model) -> tuple:
     return cfg.start_stamp + t, P, rate, tw
 
 
+class _OdomStream:
+    """Writes a log's simulated wheel odometry in stamp order, interleaved with the frames,
+    after its parameters as the metadata record ``WHEEL_ODOM_METADATA``."""
+
+    def __init__(self, cfg: SynthConfig, scene: Scene, model, writer, on: str):
+        self.stamps, self.poses, rate, self.twists = _wheel_odom_samples(cfg, scene, model)
+        self.writer, self.on, self.next = writer, on, 0
+        writer.add_metadata(WHEEL_ODOM_METADATA, {**model.metadata(), "on": on, "rate_hz": repr(rate)})
+
+    def write_until(self, stamp: float) -> None:
+        while self.next < len(self.stamps) and self.stamps[self.next] <= stamp:
+            i = self.next
+            self.writer.write_wheel_odometry(self.stamps[i], se2_to_matrix(self.poses[i]), on=self.on,
+                                             twist=self.twists[i])
+            self.next += 1
+
+
 def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
                     depth_encoding: str = "png", progress: bool = True, wheel_odom=None,
                     wheel_odom_on: str = "odom") -> dict:
@@ -907,9 +924,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     The log looks like an iai_kinect2 recording (``/kinect2/qhd/...`` images and
     camera_info, the mount on ``/tf_static``, ground truth on ``/ground_truth``) in the
     ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
-    ``wheel_odom``: a :class:`planar_vo.io.wheel_odom.WheelOdomModel` adds wheel odometry
-    driven by the true path, on ``/odom`` (``wheel_odom_on="odom"``) or ``/tf``
-    (``"tf"``), its parameters in the MCAP metadata record ``planar_vo.wheel_odometry``.
+    ``wheel_odom`` (a :class:`~planar_vo.io.wheel_odom.WheelOdomModel`) adds wheel odometry on
+    ``/odom`` or (``wheel_odom_on="tf"``) ``/tf``, parameters in the metadata (:class:`_OdomStream`).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -930,22 +946,9 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     except ValueError as exc:
         raise InputError(f"synthetic log {out}: {exc}") from None
 
-    odom = _wheel_odom_samples(cfg, renderer.scene, wheel_odom) if wheel_odom is not None else None
-    if odom is not None:
-        writer.add_metadata(WHEEL_ODOM_METADATA, {**wheel_odom.metadata(), "on": wheel_odom_on,
-                                                  "rate_hz": repr(odom[2])})
-    odom_next = [0]
-
-    def put_odom(until: float) -> None:
-        st, P, _, tw = odom
-        while odom_next[0] < len(st) and st[odom_next[0]] <= until:
-            i = odom_next[0]
-            writer.write_wheel_odometry(st[i], se2_to_matrix(P[i]), on=wheel_odom_on, twist=tw[i])
-            odom_next[0] += 1
-
     def put(frame: SynthFrame) -> None:
         if odom is not None:
-            put_odom(frame.rgbd.stamp)
+            odom.write_until(frame.rgbd.stamp)
         writer.write(frame.rgbd)
         writer.write_ground_truth(frame.rgbd.stamp, frame.T_world_cam)
 
@@ -954,6 +957,7 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     # encoders and most numpy work release the GIL)
     with writer, ThreadPoolExecutor(max_workers=1) as pool:
         pending = None
+        odom = _OdomStream(cfg, renderer.scene, wheel_odom, writer, wheel_odom_on) if wheel_odom else None
         twists = _twists_at(cfg, renderer.scene, stamps - cfg.start_stamp)
         for i, f in enumerate(renderer.render_stream(poses, np.arange(cfg.n_frames), stamps, twists)):
             T_wc[i] = f.T_world_cam
@@ -967,7 +971,7 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
         if pending is not None:
             pending.result()
         if odom is not None:
-            put_odom(math.inf)
+            odom.write_until(math.inf)
     if progress:
         print(file=sys.stderr)
     _write_tum(gt_path, stamps, T_wc, cfg)

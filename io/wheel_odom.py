@@ -154,13 +154,13 @@ def choose_odometry_topic(topics_by_kind: dict, override: str | None = None,
                         if not t.endswith("tf_static") and not _is_ground_truth(t)})
         raise InputError(f"{source}: --odom-topic {override} is not an odometry, /tf or pose topic of the log "
                          f"(candidates: {', '.join(cands) or 'none'})")
-    odo = sorted(topics_by_kind.get(m.ODOMETRY, ()))
+    odo = sorted(set(topics_by_kind.get(m.ODOMETRY, ())))
     if odo:
         return ("/odom" if "/odom" in odo else odo[0]), m.ODOMETRY
-    tf = sorted(t for t in topics_by_kind.get(m.TRANSFORMS, ()) if not t.endswith("tf_static"))
+    tf = sorted({t for t in topics_by_kind.get(m.TRANSFORMS, ()) if not t.endswith("tf_static")})
     if tf:
         return ("/tf" if "/tf" in tf else tf[0]), m.TRANSFORMS
-    poses = sorted(t for t in topics_by_kind.get(m.POSE, ()) if "odom" in t.lower() and not _is_ground_truth(t))
+    poses = sorted({t for t in topics_by_kind.get(m.POSE, ()) if "odom" in t.lower() and not _is_ground_truth(t)})
     if poses:
         return ("/odom" if "/odom" in poses else poses[0]), m.POSE
     return None
