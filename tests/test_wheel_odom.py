@@ -133,7 +133,7 @@ def test_calibration_recovers_scale_turn_and_drift_from_vision_steps():
 @pytest.mark.parametrize("profile, on, source", [("ros2", "odom", "nav_msgs/Odometry"),
                                                  ("ros2", "tf", "tf2_msgs/TFMessage"),
                                                  ("foxglove", "odom", "foxglove.PoseInFrame")])
-def test_synth_log_carries_the_model_odometry(tmp_path, profile, on, source):
+def test_synth_log_carries_the_model_odometry(tmp_path, capsys, profile, on, source):
     cfg = SynthConfig(layout="straight", n_frames=26, seed=4).at_resolution(96, 54)
     model = WheelOdomModel(rate_hz=40.0, seed=4)
     out = tmp_path / "o.mcap"
@@ -148,6 +148,11 @@ def test_synth_log_carries_the_model_odometry(tmp_path, profile, on, source):
         assert "101 samples, 40.0 Hz" in str(log.summary())
         with pytest.raises(InputError, match="--odom-topic /kinect2"):
             log.wheel_odometry("/kinect2/qhd/camera_info")
+    if on == "odom" and profile == "ros2":   # a wrong --odom-topic is one line and exit 2
+        from planar_vo.cli import main
+        assert main(["run", str(out), "--out", str(tmp_path / "r"), "--quiet", "--odom-topic", "/nope"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--odom-topic /nope is not" in err[0] and "(candidates: /odom)" in err[0]
     from mcap.reader import make_reader
     with open(out, "rb") as f:
         meta = {r.name: r.metadata for r in make_reader(f).iter_metadata()}
