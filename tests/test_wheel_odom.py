@@ -128,6 +128,32 @@ def test_calibration_recovers_scale_turn_and_drift_from_vision_steps():
     assert WheelCalibration().scale == 0.0   # nothing corrected before vision measured min_m
 
 
+@pytest.mark.parametrize("graph_cls", ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"])
+def test_graph_follows_the_odometry_through_bridged_steps(graph_cls):
+    """Vision bridges every step with a wrong constant-velocity guess; the odometry (exact
+    here) carries the graph instead, in batch and in iSAM2, and a vision step that measured
+    the motion is fused with it (both agree, so the pose is theirs)."""
+    from planar_vo.backend import graph as g
+    from planar_vo.frontend.types import STATUS_BRIDGED, STATUS_DPP, FrameResult, Step
+
+    t = np.linspace(0, 5, 51)
+    truth = _arc(t)
+    steps = WheelSteps(WheelOdometry(t, truth), BackendConfig(wheel_odom_calibrate=False))
+    graph = getattr(g, graph_cls)(BackendConfig())
+    rel = se2_between_many(truth[:-1], truth[1:])
+    for k, stamp in enumerate(t):
+        if k == 0:
+            step = None
+        elif k < 30:
+            step = Step(np.array([0.1, 0.0, 0.0]), np.diag([1.0, 1.0, 10.0]), STATUS_BRIDGED)
+        else:
+            step = Step(rel[k - 1], np.diag([1e5, 1e5, 1e6]), STATUS_DPP, 100)
+        graph.add_frame(FrameResult(k, stamp, step), odometry=steps.step(stamp))
+    poses = graph.optimize() if graph_cls == "PlanarPoseGraph" else graph.estimate()
+    np.testing.assert_allclose(poses, truth, atol=1e-6)
+    assert graph.stats["factors"]["bridged_by_wheel_odom"] == 29 and graph.stats["factors"]["wheel_odom"] == 50
+
+
 # ------------------------------------------------------------------ logs
 
 @pytest.mark.parametrize("profile, on, source", [("ros2", "odom", "nav_msgs/Odometry"),
