@@ -67,6 +67,12 @@ class BackendConfig:
     #: Estimate the odometry's scale, turn scale and heading drift from the steps vision
     #: measured and correct each odometry step with them (planar_vo.backend.wheel).
     wheel_odom_calibrate: bool = True
+    #: Where vision's forward motion differs from the odometry's by more than this fraction
+    #: over the last wheel_odom_check_m metres, vision's translation is distrusted (its
+    #: information on x, y scaled by wheel_odom_distrust) and the odometry carries it.
+    wheel_odom_max_disagreement: float = 0.15
+    wheel_odom_check_m: float = 2.0
+    wheel_odom_distrust: float = 1e-4
     #: A bridged step (no estimator had the motion) is left out when the wheel odometry
     #: covers it: the odometry carries the graph instead of the constant-velocity guess.
     wheel_odom_replaces_bridge: bool = True
@@ -128,7 +134,8 @@ class BackendConfig:
                     "manhattan_min_sigma_deg", "manhattan_tie_sigma_deg", "gate_sigmas", "gate_max_deg", "new_frame_gate_deg",
                     "same_frame_deg",
                     "isam2_relinearize_xy", "isam2_relinearize_theta_deg",
-                    "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg")
+                    "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg", "wheel_odom_max_disagreement",
+                    "wheel_odom_check_m", "wheel_odom_distrust")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")

@@ -110,12 +110,16 @@ class _GraphBuilder:
         if odometry is None:
             graph.add(self.relative_factor(k - 1, k, p, info, kind))
             return p, info
-        p_w = _check_pose(odometry[0], "wheel odometry step")
-        info_w = _check_information(odometry[1], "wheel odometry information")
+        p_w = _check_pose(odometry.pose, "wheel odometry step")
+        info_w = _check_information(odometry.information, "wheel odometry information")
         graph.add(self.relative_factor(k - 1, k, p_w, info_w, "wheel_odom"))
         if result.step.status == STATUS_BRIDGED and self.cfg.wheel_odom_replaces_bridge:
             self.counts["bridged_by_wheel_odom"] += 1
             return p_w, info_w
+        if not odometry.vision_agrees:  # keep vision's yaw, let the odometry carry the translation
+            w = np.diag([math.sqrt(self.cfg.wheel_odom_distrust)] * 2 + [1.0])
+            info = w @ info @ w
+            self.counts["vision_translation_distrusted"] += 1
         graph.add(self.relative_factor(k - 1, k, p, info, kind))
         return fuse_steps(p, info, p_w, info_w)
 
@@ -124,8 +128,7 @@ class _GraphBuilder:
 
         ``previous``: the solver's current estimate of the previous pose (3,), used to
         initialise the new one; defaults to the builder's own guess. ``odometry``: the wheel
-        odometry's step into this frame, ``(pose (3,), information (3, 3))``, or None
-        (:class:`planar_vo.backend.wheel.WheelSteps`).
+        odometry's step into this frame (:class:`planar_vo.backend.wheel.OdometryStep`) or None.
         """
         if not isinstance(result, FrameResult):
             raise TypeError(f"add_frame expects a FrameResult, got {type(result).__name__}")
@@ -290,8 +293,8 @@ class PlanarPoseGraph:
 
     def add_frame(self, result: FrameResult, odometry=None) -> int:
         """Add one front-end frame (its step from the previous one and its Manhattan
-        observations) and, when given, the wheel odometry's step into it ``(pose (3,),
-        information (3, 3))``; returns the frame's index in the graph."""
+        observations) and, when given, the wheel odometry's step into it
+        (:class:`planar_vo.backend.wheel.OdometryStep`); returns the frame's index in the graph."""
         graph, values, k = self._b.frame(result, odometry=odometry)
         base = self._graph.size()
         links = iter(self._b.last_links)

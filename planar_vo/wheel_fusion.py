@@ -67,6 +67,7 @@ def write_wheel_outputs(out: Path, steps, stamps, T_base_cam, backend_stats: dic
         "steps_with_factor": int(factors.get("wheel_odom", 0)),
         "bridged_replaced": int(factors.get("bridged_by_wheel_odom", 0)),
         "frames_not_covered": int(steps.uncovered),
+        "vision_translation_distrusted": int(steps.vision_distrusted),
         "noise_model": {k: getattr(cfg, k) for k in (
             "wheel_odom_sigma_min_m", "wheel_odom_sigma_per_m", "wheel_odom_sigma_min_deg",
             "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad")},

@@ -104,9 +104,10 @@ def test_wheel_steps_between_frame_stamps():
     t = np.linspace(0, 10, 101)
     steps = WheelSteps(WheelOdometry(t, _arc(t)))
     assert steps.step(1.0) is None
-    d, info = steps.step(1.5)
-    np.testing.assert_allclose(d, se2_between_many(_arc(np.array([1.0])), _arc(np.array([1.5])))[0], atol=1e-12)
-    assert info.shape == (3, 3)
+    o = steps.step(1.5)
+    np.testing.assert_allclose(o.pose, se2_between_many(_arc(np.array([1.0])), _arc(np.array([1.5])))[0],
+                               atol=1e-12)
+    assert o.information.shape == (3, 3) and o.vision_agrees
     assert steps.step(11.0) is None and steps.uncovered == 1
 
 
