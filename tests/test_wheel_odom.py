@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from planar_vo.backend.config import BackendConfig
-from planar_vo.backend.wheel import WheelCalibration, WheelSteps, fuse_steps, wheel_step_information
+from planar_vo.backend.wheel import ScaleCheck, WheelCalibration, WheelSteps, fuse_steps, wheel_step_information
 from planar_vo.config import load_config
 from planar_vo.errors import InputError
 from planar_vo.evaluation import evaluate_run, format_table
@@ -127,6 +127,17 @@ def test_calibration_recovers_scale_turn_and_drift_from_vision_steps():
     assert rep["drift_deg_per_m"] == pytest.approx(0.5 / 1.02, abs=0.02)
     np.testing.assert_allclose(cal.correct(odo), vis, atol=2e-4)
     assert WheelCalibration().scale == 0.0   # nothing corrected before vision measured min_m
+
+
+def test_scale_check_flags_vision_that_disagrees_with_the_odometry():
+    ok, short = ScaleCheck(2.0, 0.15), ScaleCheck(2.0, 0.15)
+    rng = np.random.default_rng(2)
+    verdicts_ok, verdicts_short = [], []
+    for _ in range(200):   # 4 m of 2 cm steps; vision noise 3 mm per step
+        verdicts_ok.append(ok.observe(0.02, 0.02 + 0.003 * rng.standard_normal()))
+        verdicts_short.append(short.observe(0.02, 0.011 + 0.003 * rng.standard_normal()))
+    assert all(verdicts_ok)
+    assert all(verdicts_short[:24]) and not any(verdicts_short[25:])   # judged from 0.5 m on
 
 
 @pytest.mark.parametrize("graph_cls", ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"])
