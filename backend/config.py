@@ -64,9 +64,10 @@ class BackendConfig:
     wheel_odom_sigma_min_deg: float = 0.05
     wheel_odom_sigma_deg_per_m: float = 5.0
     wheel_odom_sigma_per_rad: float = 0.2
-    #: Estimate the odometry's scale, turn scale and heading drift from the steps vision
-    #: measured and correct each odometry step with them (planar_vo.backend.wheel).
-    wheel_odom_calibrate: bool = True
+    #: The odometry's scale, turn scale and heading drift are always estimated from the
+    #: steps vision measured (report.json); true: also correct each odometry step with
+    #: them (planar_vo.backend.wheel). Off by default: it did not measurably help (README).
+    wheel_odom_calibrate: bool = False
     #: Where vision's forward motion differs from the odometry's by more than this fraction
     #: over the last wheel_odom_check_m metres, vision's translation is distrusted (its
     #: information on x, y scaled by wheel_odom_distrust) and the odometry carries it.

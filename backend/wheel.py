@@ -14,13 +14,10 @@ rotation ``r`` it turns (configurable in :class:`BackendConfig`)::
     sigma_theta       = hypot(wheel_odom_sigma_min_deg, wheel_odom_sigma_deg_per_m * d,
                               wheel_odom_sigma_per_rad * r)
 
-Calibration (``wheel_odom_calibrate``, default on): the odometry's scale, turn scale and
-heading drift per metre are estimated on the way from the steps vision measured
-(:class:`WheelCalibration`) and taken out of each odometry step before it enters the
-graph, so that where vision is good the odometry agrees with it and where vision has
-nothing it carries on at vision's scale. (An earlier variant kept the raw odometry with
-these sigmas: on a low-texture straight corridor it doubled the smoothed drift, 0.42 ->
-0.88 %, by pulling the path towards the odometry's 2 % scale error.)
+Calibration: the odometry's scale, turn scale and heading drift per metre are estimated on
+the way from the steps vision measured (:class:`WheelCalibration`, reported); with
+``wheel_odom_calibrate`` they are also taken out of each odometry step before it enters
+the graph (off by default: on the measured logs it did not help, see README).
 
 Pure: no file I/O.
 """
@@ -180,7 +177,7 @@ class WheelSteps:
     def __init__(self, odometry, config: BackendConfig | None = None):
         self.odometry = odometry
         self.config = config or BackendConfig()
-        self.calibration = WheelCalibration() if self.config.wheel_odom_calibrate else None
+        self.calibration = WheelCalibration()   # estimated always, applied if configured
         self._last: np.ndarray | None = None
         self.check = ScaleCheck(self.config.wheel_odom_check_m, self.config.wheel_odom_max_disagreement)
         self.steps = 0        # steps returned
@@ -202,10 +199,10 @@ class WheelSteps:
         agrees = self.check.agrees  # a partial step's guessed part comes from vision's velocity
         if st is not None and st.status in (STATUS_DPP, STATUS_2PT):
             agrees = self.check.observe(float(d[0]), float(st.pose[0]))
-            if self.calibration is not None and agrees:
+            if agrees:
                 self.calibration.observe(d, np.asarray(st.pose, dtype=np.float64))
         self.vision_distrusted += not agrees
-        if self.calibration is not None:
+        if self.config.wheel_odom_calibrate:
             d = self.calibration.correct(d)
         self.steps += 1
         return OdometryStep(d, wheel_step_information(d, self.config), agrees)

@@ -71,7 +71,7 @@ def write_wheel_outputs(out: Path, steps, stamps, T_base_cam, backend_stats: dic
         "noise_model": {k: getattr(cfg, k) for k in (
             "wheel_odom_sigma_min_m", "wheel_odom_sigma_per_m", "wheel_odom_sigma_min_deg",
             "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad")},
-        "calibration": steps.calibration.report() if steps.calibration is not None else None,
+        "calibration": {**steps.calibration.report(), "applied": bool(cfg.wheel_odom_calibrate)},
         "trajectory": WHEEL_TUM if traj is not None else None,
     }
     return report, files

@@ -150,7 +150,7 @@ def test_graph_follows_the_odometry_through_bridged_steps(graph_cls):
 
     t = np.linspace(0, 5, 51)
     truth = _arc(t)
-    steps = WheelSteps(WheelOdometry(t, truth), BackendConfig(wheel_odom_calibrate=False))
+    steps = WheelSteps(WheelOdometry(t, truth), BackendConfig())
     graph = getattr(g, graph_cls)(BackendConfig())
     rel = se2_between_many(truth[:-1], truth[1:])
     for k, stamp in enumerate(t):
