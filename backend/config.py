@@ -52,6 +52,34 @@ class BackendConfig:
     bridged_sigma_xy: float = 0.5            # m
     bridged_sigma_theta_deg: float = 30.0    # deg
 
+    # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)
+    #: Use the log's wheel odometry when it has one (``--no-wheel-odom`` turns it off).
+    wheel_odom: bool = True
+    #: Noise model of one odometry step of length d (m) and rotation r (rad), in base_link:
+    #: sigma_xy = hypot(min_m, per_m * d), sigma_theta = hypot(min_deg, deg_per_m * d,
+    #: per_rad * r). The sigmas are generous on purpose: they must cover the odometry's
+    #: systematic errors (scale, wheelbase, heading drift of a few %), which are not noise,
+    #: so that good vision steps (mm, 0.05 deg) and the Manhattan headings dominate where
+    #: they exist. The messages' covariances are ignored (drivers often fill in constants).
+    wheel_odom_sigma_min_m: float = 0.002
+    wheel_odom_sigma_per_m: float = 0.3
+    wheel_odom_sigma_min_deg: float = 0.05
+    wheel_odom_sigma_deg_per_m: float = 5.0
+    wheel_odom_sigma_per_rad: float = 0.2
+    #: The odometry's scale, turn scale and heading drift are always estimated from the
+    #: steps vision measured (report.json); true: also correct each odometry step with
+    #: them (planar_vo.backend.wheel). Off by default: it did not measurably help (README).
+    wheel_odom_calibrate: bool = False
+    #: Where vision's forward motion differs from the odometry's by more than this fraction
+    #: over the last wheel_odom_check_m metres, vision's translation is distrusted (its
+    #: information on x, y scaled by wheel_odom_distrust) and the odometry carries it.
+    wheel_odom_max_disagreement: float = 0.15
+    wheel_odom_check_m: float = 2.0
+    wheel_odom_distrust: float = 1e-4
+    #: A bridged step (no estimator had the motion) is left out when the wheel odometry
+    #: covers it: the odometry carries the graph instead of the constant-velocity guess.
+    wheel_odom_replaces_bridge: bool = True
+
     # --- Manhattan-frame rotation factors
     manhattan: bool = True
     #: "native": BetweenFactorPose2 with zero information on translation (exact, C++ speed);
@@ -108,11 +136,14 @@ class BackendConfig:
                     "manhattan_robust_parameter", "bridged_sigma_xy", "bridged_sigma_theta_deg",
                     "manhattan_min_sigma_deg", "manhattan_tie_sigma_deg", "gate_sigmas", "gate_max_deg", "new_frame_gate_deg",
                     "same_frame_deg",
-                    "isam2_relinearize_xy", "isam2_relinearize_theta_deg")
+                    "isam2_relinearize_xy", "isam2_relinearize_theta_deg",
+                    "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg", "wheel_odom_max_disagreement",
+                    "wheel_odom_check_m", "wheel_odom_distrust")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
+                     "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
                      "manhattan_instance_size",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:

@@ -22,6 +22,7 @@ from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor,
                                        manhattan_value, robust_noise, robust_weight, step_noise)
 from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
 from planar_vo.core.geometry import se2_compose, wrap_angle, wrap_quarter
+from planar_vo.backend.wheel import fuse_steps
 
 __all__ = ["PlanarPoseGraph", "IncrementalPlanarPoseGraph"]
 
@@ -93,11 +94,41 @@ class _GraphBuilder:
             self.robust.append((kind, f))
         return f
 
-    def frame(self, result: FrameResult, previous: np.ndarray | None = None):
+    def _step_factors(self, k: int, result: FrameResult, odometry, graph) -> tuple[np.ndarray, np.ndarray]:
+        """Add the step factor(s) into frame ``k``; returns the step ``(pose, information)``
+        the initial value and the heading filter use: the front-end's step, fused with the
+        wheel odometry's when there is one (a bridged step is then replaced by it)."""
+        if result.step is None:
+            raise ValueError(f"FrameResult {result.index} (graph frame {k}) has step=None; "
+                             f"only the first frame of a run may lack a step")
+        p = _check_pose(result.step.pose, f"FrameResult {result.index} step.pose")
+        info = self.step_information(
+            _check_information(result.step.information, f"FrameResult {result.index} step.information"),
+            result.step.status)
+        kind = result.step.status if result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL) else "step"
+        self.raw.append(se2_compose(self.raw[-1], p))
+        if odometry is None:
+            graph.add(self.relative_factor(k - 1, k, p, info, kind))
+            return p, info
+        p_w = _check_pose(odometry.pose, "wheel odometry step")
+        info_w = _check_information(odometry.information, "wheel odometry information")
+        graph.add(self.relative_factor(k - 1, k, p_w, info_w, "wheel_odom"))
+        if result.step.status == STATUS_BRIDGED and self.cfg.wheel_odom_replaces_bridge:
+            self.counts["bridged_by_wheel_odom"] += 1
+            return p_w, info_w
+        if not odometry.vision_agrees:  # keep vision's yaw, let the odometry carry the translation
+            w = np.diag([math.sqrt(self.cfg.wheel_odom_distrust)] * 2 + [1.0])
+            info = w @ info @ w
+            self.counts["vision_translation_distrusted"] += 1
+        graph.add(self.relative_factor(k - 1, k, p, info, kind))
+        return fuse_steps(p, info, p_w, info_w)
+
+    def frame(self, result: FrameResult, previous: np.ndarray | None = None, odometry=None):
         """Factors and values for one frame: ``(NonlinearFactorGraph, Values, index)``.
 
         ``previous``: the solver's current estimate of the previous pose (3,), used to
-        initialise the new one; defaults to the builder's own guess.
+        initialise the new one; defaults to the builder's own guess. ``odometry``: the wheel
+        odometry's step into this frame (:class:`planar_vo.backend.wheel.OdometryStep`) or None.
         """
         if not isinstance(result, FrameResult):
             raise TypeError(f"add_frame expects a FrameResult, got {type(result).__name__}")
@@ -115,16 +146,7 @@ class _GraphBuilder:
             self.raw.append(pose0)
             guess = pose0.copy()
         else:
-            if result.step is None:
-                raise ValueError(f"FrameResult {result.index} (graph frame {k}) has step=None; "
-                                 f"only the first frame of a run may lack a step")
-            p = _check_pose(result.step.pose, f"FrameResult {result.index} step.pose")
-            info = self.step_information(
-                _check_information(result.step.information, f"FrameResult {result.index} step.information"),
-                result.step.status)
-            kind = result.step.status if result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL) else "step"
-            graph.add(self.relative_factor(k - 1, k, p, info, kind))
-            self.raw.append(se2_compose(self.raw[-1], p))
+            p, info = self._step_factors(k, result, odometry, graph)
             self.assoc.predict(float(p[2]), float(np.linalg.inv(info)[2, 2]))
             prev = self.guess[-1] if previous is None else previous
             guess = se2_compose(prev, p)
@@ -269,10 +291,11 @@ class PlanarPoseGraph:
     def __len__(self) -> int:
         return self._b.n
 
-    def add_frame(self, result: FrameResult) -> int:
+    def add_frame(self, result: FrameResult, odometry=None) -> int:
         """Add one front-end frame (its step from the previous one and its Manhattan
-        observations); returns the frame's index in the graph."""
-        graph, values, k = self._b.frame(result)
+        observations) and, when given, the wheel odometry's step into it
+        (:class:`planar_vo.backend.wheel.OdometryStep`); returns the frame's index in the graph."""
+        graph, values, k = self._b.frame(result, odometry=odometry)
         base = self._graph.size()
         links = iter(self._b.last_links)
         for i in range(graph.size()):
@@ -436,15 +459,16 @@ class IncrementalPlanarPoseGraph:
             return self._isam.calculateEstimatePose2(M(inst)).theta()
         return self._isam.calculateEstimateRot2(M(inst)).theta()
 
-    def add_frame(self, result: FrameResult) -> int:
-        """Add one frame and update iSAM2 with its new factors and values; returns its index."""
+    def add_frame(self, result: FrameResult, odometry=None) -> int:
+        """Add one frame (and its wheel odometry step, as in :meth:`PlanarPoseGraph.add_frame`)
+        and update iSAM2 with its new factors and values; returns its index."""
         t0 = time.perf_counter()
         k = self._b.n
         prev = None
         if k > 0:
             p = self._isam.calculateEstimatePose2(X(k - 1))
             prev = np.array([p.x(), p.y(), p.theta()])
-        graph, values, k = self._b.frame(result, prev)
+        graph, values, k = self._b.frame(result, prev, odometry)
         if self._pending.size():
             graph.push_back(self._pending)
             self._pending = gtsam.NonlinearFactorGraph()

@@ -47,6 +47,7 @@ class LogSummary:
     depth_valid_fraction: float | None = None  # mean over the sampled frames
     depth_frames_sampled: int = 0
     truncated: str | None = None  # where reading stopped, for a cut log
+    wheel_odometry: str | None = None  # WheelOdometry.describe() of the odometry found
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -90,6 +91,7 @@ class LogSummary:
         else:
             lines.append("mount:        none found (no static transform chain from base_link to the camera)")
         lines.append(f"ground truth: {f'{self.ground_truth_poses} poses' if self.ground_truth_poses else 'none'}")
+        lines.append(f"odometry:     {self.wheel_odometry or 'none (no nav_msgs/Odometry, no /tf odom -> base_link)'}")
         if self.depth_frames_sampled:
             lines.append(f"depth valid:  {100.0 * (self.depth_valid_fraction or 0.0):.1f} % of pixels "
                          f"(mean of {self.depth_frames_sampled} sampled frames)")
@@ -136,6 +138,13 @@ class RGBDLog(ABC):
 
     @property
     def ground_truth(self) -> Trajectory | None:
+        return None
+
+    def wheel_odometry(self, topic: str | None = None):
+        """The robot's wheel odometry (:class:`planar_vo.io.wheel_odom.WheelOdometry`,
+        stamped SE(2) ``T_odom_base``) or None; ``topic`` overrides the automatic choice."""
+        if topic is not None:
+            raise InputError(f"{self.path}: --odom-topic {topic}: this log format carries no odometry topics")
         return None
 
     @abstractmethod

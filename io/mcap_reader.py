@@ -38,6 +38,7 @@ from planar_vo.io.log import (DEPTH_SAMPLES, INTRINSICS_FLAGS, LogSummary, RGBDL
 from planar_vo.io.pairing import COLOR, DEPTH, Pair, StampPairer, Unpaired
 from planar_vo.io.rosmsg import Ros1DecoderFactory
 from planar_vo.io.topics import choose_topics
+from planar_vo.io.wheel_odom import choose_odometry_topic, odometry_from_messages
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame, Trajectory
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -110,6 +111,7 @@ class McapRGBDLog(RGBDLog):
         super().__init__(path)
         self.sync_tolerance = float(sync_tolerance)
         self._intrinsics_override = intrinsics
+        self._odom_cache: dict = {}  # --odom-topic -> WheelOdometry or None
         self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
         try:
             self._open(color_topic, depth_topic, info_topic)
@@ -167,7 +169,7 @@ class McapRGBDLog(RGBDLog):
         for cid, ch in self._channels.items():
             schema = self._schemas.get(ch.schema_id)
             self._kinds[cid] = m.schema_kind(schema.name) if schema is not None else None
-        topics_of = defaultdict(list)
+        topics_of = self._topics_of_kind = defaultdict(list)  # kind -> topics
         for cid, kind in self._kinds.items():
             topics_of[kind].append(self._channels[cid].topic)
         image_topics = sorted(set(topics_of[m.IMAGE] + topics_of[m.COMPRESSED]))
@@ -517,6 +519,23 @@ class McapRGBDLog(RGBDLog):
                 return Mount(T, parent_frame=base, child_frame=camera)
         return None
 
+    def wheel_odometry(self, topic: str | None = None):
+        """Wheel odometry found in the log (see :mod:`planar_vo.io.wheel_odom` for the order
+        of sources) or None; ``topic`` (``--odom-topic``) overrides the choice. Read once."""
+        if topic not in self._odom_cache:
+            found = choose_odometry_topic(self._topics_of_kind, topic, source=str(self.path))
+            odo = None
+            if found is not None:
+                name, kind = found
+                msgs = ((stamp, msg) for stamp, _, msg in self._messages_of(name, []))
+                schema = next((self._schemas[ch.schema_id].name for ch in self._channels.values()
+                               if ch.topic == name and ch.schema_id in self._schemas), "")
+                odo = odometry_from_messages(name, kind, msgs, schema.replace("/msg/", "/"))
+                if odo is None and topic is not None:
+                    raise InputError(f"{self.path}: --odom-topic {topic} carries no odom -> base_link pose")
+            self._odom_cache[topic] = odo
+        return self._odom_cache[topic]
+
     @property
     def ground_truth(self) -> Trajectory | None:
         if self._gt_cache is None:
@@ -582,6 +601,11 @@ class McapRGBDLog(RGBDLog):
             depth_frames_sampled=len(fractions))
         try:
             s.intrinsics, s.intrinsics_source = self._intrinsics_and_source()
+        except InputError as exc:
+            s.notes.append(str(exc))
+        try:
+            odo = self.wheel_odometry()
+            s.wheel_odometry = odo.describe() if odo is not None else None
         except InputError as exc:
             s.notes.append(str(exc))
         gt = self.ground_truth

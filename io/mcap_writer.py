@@ -24,6 +24,10 @@ CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")
 KINECT2_QHD = "/kinect2/qhd"
 GROUND_TRUTH_TOPIC = "/ground_truth"
 TF_STATIC_TOPIC = "/tf_static"
+TF_TOPIC = "/tf"
+ODOM_TOPIC = "/odom"
+#: Where wheel odometry goes: a nav_msgs/Odometry (Foxglove: PoseInFrame) topic, or /tf.
+WHEEL_ODOM_ON = ("odom", "tf")
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,8 @@ class LogTopics:
     info: str
     tf_static: str = TF_STATIC_TOPIC
     ground_truth: str = GROUND_TRUTH_TOPIC
+    odom: str = ODOM_TOPIC
+    tf: str = TF_TOPIC
 
     @classmethod
     def kinect2(cls, color_encoding: str, depth_encoding: str, prefix: str = KINECT2_QHD) -> "LogTopics":
@@ -170,6 +176,31 @@ class RGBDLogWriter:
                   lambda: m.ros2_pose_stamped(stamp, "world", T),
                   lambda: m.foxglove_pose_in_frame(stamp, "world", T))
         self.poses_written += 1
+
+    def write_wheel_odometry(self, stamp: float, T_odom_base: np.ndarray, *, on: str = "odom",
+                             twist=(0.0, 0.0, 0.0)) -> None:
+        """Write one wheel odometry sample, the (4, 4) pose of ``base_frame`` in ``odom``:
+        ``on="odom"`` as nav_msgs/Odometry (Foxglove profile: PoseInFrame in ``odom``) on
+        ``topics.odom``; ``on="tf"`` as the transform ``odom -> base_frame`` on ``topics.tf``.
+        ``twist``: ``(vx, vy, omega)`` in base_link (ROS 2 Odometry only)."""
+        self._check_open()
+        if on not in WHEEL_ODOM_ON:
+            raise ValueError(f"wheel odometry on={on!r}: use one of {WHEEL_ODOM_ON}")
+        T = np.asarray(T_odom_base, dtype=np.float64)
+        stamp = float(stamp)
+        if on == "tf":
+            tf = [(stamp, "odom", self.base_frame, T)]
+            self._put(self.topics.tf, stamp, "tf2_msgs/msg/TFMessage",
+                      lambda: m.ros2_tf_message(tf), lambda: m.foxglove_frame_transforms(tf))
+            return
+        self._put(self.topics.odom, stamp, "nav_msgs/msg/Odometry",
+                  lambda: m.ros2_odometry(stamp, "odom", self.base_frame, T, twist),
+                  lambda: m.foxglove_pose_in_frame(stamp, "odom", T))
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record ``name`` with string keys and values."""
+        self._check_open()
+        self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
     # ----------------------------------------------------------------- lifecycle
     def _check_open(self) -> None:

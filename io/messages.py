@@ -21,8 +21,8 @@ from planar_vo.io.codecs import EncodedImage
 from planar_vo.core.types import CameraIntrinsics
 
 # Schema names, normalised by :func:`schema_kind`.
-IMAGE, COMPRESSED, CAMERA_INFO, TRANSFORMS, POSE, POSES = (
-    "image", "compressed", "camera_info", "transforms", "pose", "poses")
+IMAGE, COMPRESSED, CAMERA_INFO, TRANSFORMS, POSE, POSES, ODOMETRY = (
+    "image", "compressed", "camera_info", "transforms", "pose", "poses", "odometry")
 
 _KINDS = {
     "sensor_msgs/Image": IMAGE, "foxglove.RawImage": IMAGE,
@@ -32,6 +32,7 @@ _KINDS = {
     "foxglove.FrameTransform": TRANSFORMS,
     "geometry_msgs/PoseStamped": POSE, "foxglove.PoseInFrame": POSE,
     "foxglove.PosesInFrame": POSES,
+    "nav_msgs/Odometry": ODOMETRY,
 }
 
 
@@ -166,6 +167,19 @@ def ros2_path(stamp: float, frame_id: str, poses: np.ndarray) -> dict:
     """nav_msgs/Path of ``poses`` (N, 4, 4), every pose stamped ``stamp``."""
     return {"header": ros2_header(stamp, frame_id),
             "poses": [ros2_pose_stamped(stamp, frame_id, T) for T in poses]}
+def ros2_odometry(stamp: float, frame_id: str, child_frame_id: str, T: np.ndarray,
+                  twist=(0.0, 0.0, 0.0), pose_var=(1e-4, 1e-4, 1e-3)) -> dict:
+    """nav_msgs/Odometry: pose ``T`` (4, 4) of ``child_frame_id`` in ``frame_id``; ``twist``
+    ``(vx, vy, omega)`` in the child frame; ``pose_var`` the x, y, yaw variances (diagonal)."""
+    t, q = _xyz_quat(T)
+    pc = [0.0] * 36
+    pc[0], pc[7], pc[35] = (float(v) for v in pose_var)
+    pc[14] = pc[21] = pc[28] = 1e6  # z, roll, pitch: not measured by a planar base
+    tw = {"linear": {"x": float(twist[0]), "y": float(twist[1]), "z": 0.0},
+          "angular": {"x": 0.0, "y": 0.0, "z": float(twist[2])}}
+    return {"header": ros2_header(stamp, frame_id), "child_frame_id": child_frame_id,
+            "pose": {"pose": {"position": t, "orientation": q}, "covariance": pc},
+            "twist": {"twist": tw, "covariance": [0.0] * 36}}
 
 
 def _fill_pose(pose, T: np.ndarray) -> None:
@@ -282,3 +296,10 @@ def parse_transforms(msg) -> list[tuple[float, str, str, np.ndarray]]:
 def parse_pose(msg) -> tuple[float, str, np.ndarray]:
     """PoseStamped / PoseInFrame -> ``(stamp, frame_id, T (4, 4))``."""
     return _stamp_of(msg), _frame_of(msg), _matrix(msg.pose.position, msg.pose.orientation)
+
+
+def parse_odometry(msg) -> tuple[float, str, str, np.ndarray]:
+    """nav_msgs/Odometry -> ``(stamp, frame_id, child_frame_id, T (4, 4))`` (covariances ignored)."""
+    p = msg.pose.pose
+    return _stamp_of(msg), _frame_of(msg), msg.child_frame_id, _matrix(p.position, p.orientation)
+

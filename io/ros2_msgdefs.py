@@ -48,6 +48,18 @@ POSE_STAMPED = _join(
     ("geometry_msgs/Pose", _POSE), ("geometry_msgs/Point", _POINT),
     ("geometry_msgs/Quaternion", _QUATERNION))
 
+_VECTOR3_DEP = ("geometry_msgs/Vector3", _VECTOR3)
+
+ODOMETRY = _join(
+    "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\n"
+    "geometry_msgs/TwistWithCovariance twist\n", *_HEADER_DEPS,
+    ("geometry_msgs/PoseWithCovariance", "geometry_msgs/Pose pose\nfloat64[36] covariance\n"),
+    ("geometry_msgs/Pose", _POSE), ("geometry_msgs/Point", _POINT),
+    ("geometry_msgs/Quaternion", _QUATERNION),
+    ("geometry_msgs/TwistWithCovariance", "geometry_msgs/Twist twist\nfloat64[36] covariance\n"),
+    ("geometry_msgs/Twist", "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n"),
+    _VECTOR3_DEP)
+
 #: datatype name -> definition text
 DEFINITIONS = {
     "sensor_msgs/msg/Image": IMAGE,
@@ -55,4 +67,5 @@ DEFINITIONS = {
     "sensor_msgs/msg/CameraInfo": CAMERA_INFO,
     "tf2_msgs/msg/TFMessage": TF_MESSAGE,
     "geometry_msgs/msg/PoseStamped": POSE_STAMPED,
+    "nav_msgs/msg/Odometry": ODOMETRY,
 }

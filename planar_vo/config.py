@@ -26,6 +26,8 @@ class InputConfig:
     color_topic: Optional[str] = None
     depth_topic: Optional[str] = None
     info_topic: Optional[str] = None
+    #: Wheel odometry topic (nav_msgs/Odometry, /tf with odom -> base_link, or a pose topic).
+    odom_topic: Optional[str] = None
     sync_tolerance_s: float = 0.02
     #: Intrinsics override (all four or none), pixels.
     fx: Optional[float] = None

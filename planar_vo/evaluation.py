@@ -1,4 +1,5 @@
-"""Evaluate a run folder against ground truth: raw and smoothed side by side."""
+"""Evaluate a run folder against ground truth: raw and smoothed side by side, and the
+wheel odometry alone as a third column when the run had it (``wheel_odom.tum``)."""
 from __future__ import annotations
 
 import json
@@ -67,7 +68,8 @@ def find_ground_truth(run_dir: Path):
 
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
-    """Errors of ``raw.tum`` and ``smoothed.tum`` in ``run_dir`` against ``gt`` (a Trajectory)."""
+    """Errors of ``raw.tum``, ``smoothed.tum`` (and ``wheel_odom.tum`` when present) in
+    ``run_dir`` against ``gt`` (a Trajectory)."""
     run_dir = Path(run_dir)
     if not (run_dir / "smoothed.tum").exists():
         raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
@@ -76,24 +78,30 @@ def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     if gt is None:
         raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
     result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
-    for name in ("raw", "smoothed"):
+    names = ["raw", "smoothed"] + (["wheel_odom"] if (run_dir / "wheel_odom.tum").exists() else [])
+    for name in names:
         est = file_interface.read_tum_trajectory_file(run_dir / f"{name}.tum")
         result[name] = trajectory_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses,
                                          max_dt=max_dt).as_dict()
     return result
 
 
+#: Columns of the table: result key, heading (wheel odometry only when the run had it).
+COLUMNS = (("raw", "raw"), ("smoothed", "smoothed"), ("wheel_odom", "wheel odom"))
+
+
 def format_table(result: dict) -> str:
-    lines = [f"{'metric':<30}{'raw':>14}{'smoothed':>14}"]
+    cols = [(k, h) for k, h in COLUMNS if k in result]
+    lines = [f"{'metric':<30}" + "".join(f"{h:>14}" for _, h in cols)]
     for key, label, fmt in ROWS:
         cells = []
-        for name in ("raw", "smoothed"):
+        for name, _ in cols:
             v = result[name][key]
             cells.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
-        lines.append(f"{label:<30}{cells[0]:>14}{cells[1]:>14}")
-    for name in ("raw", "smoothed"):
+        lines.append(f"{label:<30}" + "".join(f"{c:>14}" for c in cells))
+    for name, heading in cols:
         if result[name].get("ate_alignment") == "first_pose":
-            lines.append(f"{name}: ATE after aligning the first poses (the ground truth is a straight line, "
+            lines.append(f"{heading}: ATE after aligning the first poses (the ground truth is a straight line, "
                          "so the SE(3) alignment is undetermined)")
     g = result["ground_truth"]
     lines.append(f"ground truth: {g['poses']} poses, height range {g['height_range_m']:.3f} m, "

@@ -43,6 +43,7 @@ from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
+from planar_vo.wheel_fusion import motion_with_wheel_odometry, wheel_steps_for_run, write_wheel_outputs
 
 
 @dataclass
@@ -163,7 +164,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     prepared = _prepare_outputs_in_background(config)
     with open_input(log_path, config) as log:
         odometry, graph = _level(log, config)
-        loop = _process_frames(log, odometry, graph, config, clock, progress)
+        wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
+        loop = _process_frames(log, odometry, graph, wheel, config, clock, progress)
         stats = dict(log.stats)  # before the summary, which may read the log again
         with clock.stage("summary"):
             # After a pass over the whole log this reads nothing: the pass recorded what it needs.
@@ -183,8 +185,11 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     with clock.stage("write"):
         files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format)
         files["steps"] = _write_steps(out / "steps.csv", loop.steps)
+        wheel_section, wheel_files = write_wheel_outputs(out, wheel, loop.stamps, T_base_cam,
+                                                         getattr(graph, "stats", {}))
+        files.update(wheel_files)
     clock.finish()
-    report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock)
+    report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock, wheel_section)
     write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
     files["report"] = str(out / "report.json")
     return RunResult(out, report, loop.partial, loop.stop_reason, files)
@@ -250,8 +255,9 @@ class _FrameLoop:
         return {k: v for k, v in self.statuses.items() if k != "first"}
 
 
-def _process_frames(log, odometry, graph, config: RunConfig, clock: _Stopwatch, progress: bool) -> _FrameLoop:
-    """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph.
+def _process_frames(log, odometry, graph, wheel, config: RunConfig, clock: _Stopwatch, progress: bool) -> _FrameLoop:
+    """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph (with
+    the wheel odometry's step over the same interval when ``wheel`` is given).
 
     The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
     both GIL-free for the most part, while the main thread works on earlier frames.
@@ -274,7 +280,7 @@ def _process_frames(log, odometry, graph, config: RunConfig, clock: _Stopwatch, 
                 cpu["frontend"] += c1 - c0
                 for k, v in result.timings.items():
                     timings[f"frontend.{k}"] += v
-                graph.add_frame(result)
+                graph.add_frame(result, odometry=wheel.step(frame.stamp, result) if wheel else None)
                 t_wait = time.perf_counter()
                 timings["backend"] += t_wait - t1
                 cpu["backend"] += time.thread_time() - c1
@@ -299,7 +305,8 @@ def _solve(graph, config: RunConfig):
     return raw, smoothed
 
 
-def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, config, clock: _Stopwatch) -> dict:
+def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, config, clock: _Stopwatch,
+            wheel_section: dict) -> dict:
     """``report.json``: counts, verdicts, back-end statistics and time per stage."""
     n = len(loop.stamps)
     timings, cpu, wall = clock.wall, clock.cpu, clock.wall_total
@@ -309,10 +316,11 @@ def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, con
         "partial": loop.partial,
         "stop_reason": loop.stop_reason,
         "frames": _frame_counts(loop, stats),
-        "motion": motion_report(loop.statuses),
+        "motion": motion_with_wheel_odometry(motion_report(loop.statuses), wheel_section),
         "mount": _mount_report(odometry.mount),
         "planarity": planarity_report(loop.frame_infos, levelled=is_levelled(odometry.levelling, loop.frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
+        "wheel_odometry": _jsonable(wheel_section),
         "manhattan_frames": [list(map(_jsonable, m)) for m in graph.manhattan_frames()],
         "timings_s": {k: round(v, 4) for k, v in sorted(timings.items())},
         "timings_ms_per_frame": {k: round(1000 * v / n, 3) for k, v in sorted(timings.items())},

@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, batch."""
+"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, batch, wheel."""
 from __future__ import annotations
 
 import argparse
@@ -14,6 +14,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),
     "sweep": ("planar_vo.bench.sweep", "accuracy over randomized scenes: drift and yaw distributions per layout"),
     "batch": ("planar_vo.bench.batch", "planar-vo batch with 1 and 2 workers against planar-vo run one log after another"),
+    "wheel": ("planar_vo.bench.wheel", "wheel odometry fusion over randomized scenes: with and without it"),
 }
 
 

@@ -9,6 +9,9 @@ def add_input_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--color-topic", help="colour image topic (default: found automatically)")
     g.add_argument("--depth-topic", help="depth image topic (default: found automatically)")
     g.add_argument("--info-topic", help="CameraInfo / CameraCalibration topic")
+    g.add_argument("--odom-topic", help="wheel odometry topic: nav_msgs/Odometry, /tf (odom -> base_link) or "
+                                        "a pose topic (default: found automatically)")
+    g.add_argument("--no-wheel-odom", action="store_true", help="ignore the log's wheel odometry")
     for k in ("fx", "fy", "cx", "cy"):
         g.add_argument(f"--{k}", type=float, help="intrinsics override in pixels (give all four)")
     g.add_argument("--pitch-deg", type=float, help="mount pitch, positive looking down (REP 103)")
@@ -23,7 +26,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     """Nested config overrides from the flags that were given."""
     ov: dict = {"input": {}, "output": {}}
     levelling: dict = {}
-    for k in ("color_topic", "depth_topic", "info_topic", "fx", "fy", "cx", "cy", "start", "stop", "stride"):
+    for k in ("color_topic", "depth_topic", "info_topic", "odom_topic", "fx", "fy", "cx", "cy", "start", "stop", "stride"):
         v = getattr(args, k, None)
         if v is not None:
             ov["input"][k] = v
@@ -33,6 +36,8 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
             levelling[k] = v
     if levelling:
         ov["frontend"] = {"levelling": levelling}
+    if getattr(args, "no_wheel_odom", False):
+        ov["backend"] = {"wheel_odom": False}
     if getattr(args, "online", False):
         ov["solver"] = "online"
     if getattr(args, "no_plot", False):
@@ -86,6 +91,10 @@ def print_summary(result) -> None:
           f"2-point {f['estimated_2pt']}, partial {f.get('partial', 0)}, bridged {f['bridged']}, "
           f"failed {f['failed']})")
     print(f"speed: {r['fps']} frames/s end to end")
+    wo = r.get("wheel_odometry") or {}
+    if wo.get("used"):
+        print(f"wheel odometry: {wo['topic']} ({wo['source']}), a factor on {wo['steps_with_factor']} steps, "
+              f"{wo['bridged_replaced']} bridged steps carried by it")
     for key, bad in (("motion", ("not_estimated", "degraded")), ("planarity", ("not_planar", "unverified"))):
         sec = r.get(key, {})
         if sec.get("verdict") in bad:

@@ -44,6 +44,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="draw the scene, path wobble, mount, speed, rate, texture, lighting and sensor "
                              "effects from --seed (planar_vo.sim.synth_random.RANGES); --frames is then a "
                              "minimum, and the other scene flags are ignored")
+    w = parser.add_argument_group("wheel odometry (a differential-drive error model driven by the true path)")
+    w.add_argument("--wheel-odom", action="store_true",
+                   help="add wheel odometry: nav_msgs/Odometry on /odom (Foxglove profile: PoseInFrame)")
+    w.add_argument("--wheel-odom-on", default="odom", choices=("odom", "tf"),
+                   help="odom: an Odometry topic /odom; tf: the transform odom -> base_link on /tf (default: odom)")
+    w.add_argument("--odom-scale", type=float, default=0.02, help="wheel travel scale error (default: 0.02 = +2 %%)")
+    w.add_argument("--odom-wheelbase", type=float, default=0.03,
+                   help="wheelbase error: turns come out scaled by 1 + this (default: 0.03)")
+    w.add_argument("--odom-drift-deg-per-m", type=float, default=0.5,
+                   help="heading drift in degrees per metre travelled (default: 0.5)")
+    w.add_argument("--odom-noise", type=float, default=0.001,
+                   help="wheel travel noise in m per sqrt(m) of travel (default: 0.001)")
+    w.add_argument("--odom-rate", type=float, default=50.0,
+                   help="odometry samples per second, at least the frame rate (default: 50)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -62,6 +76,22 @@ def _parse_size(text: str) -> tuple[int, int]:
     if w < 8 or h < 8 or w > 8192 or h > 8192:
         raise InputError(f"--size {text!r}: width and height must be between 8 and 8192 pixels")
     return w, h
+
+
+def _wheel_odom_model(args: argparse.Namespace, seed: int):
+    """The :class:`WheelOdomModel` of the flags (seeded with the log's seed), or None."""
+    from planar_vo.core.errors import InputError
+    from planar_vo.io.wheel_odom import WheelOdomModel
+
+    if not getattr(args, "wheel_odom", False):
+        return None
+    try:
+        return WheelOdomModel(scale=args.odom_scale, wheelbase=args.odom_wheelbase,
+                              drift_deg_per_m=args.odom_drift_deg_per_m, noise=args.odom_noise,
+                              rate_hz=args.odom_rate, seed=seed)
+    except ValueError as exc:
+        raise InputError(f"--wheel-odom: {exc} (see --odom-scale/--odom-wheelbase/--odom-drift-deg-per-m/"
+                         "--odom-noise/--odom-rate)") from None
 
 
 def main(args: argparse.Namespace) -> int:
@@ -98,15 +128,21 @@ def main(args: argparse.Namespace) -> int:
             msg = msg.replace(f"SynthConfig.{field}:", f"{flag}:")
         raise InputError(msg) from None
     _check_container(args)
+    odom = _wheel_odom_model(args, cfg.seed)
     t0 = time.perf_counter()
     paths = write_synth_log(cfg, args.out, profile=args.profile, color_encoding=args.color_encoding,
                             depth_encoding=args.depth_encoding, progress=not args.quiet,
-                            container=args.container)
+                            container=args.container, wheel_odom=odom,
+                            wheel_odom_on=getattr(args, "wheel_odom_on", "odom"))
     dt = time.perf_counter() - t0
     size_mb = _size(paths["log"]) / 1e6
     print(f"log: {paths['log']}  ({cfg.n_frames} frames {cfg.width}x{cfg.height}, {size_mb:.1f} MB, "
           f"{cfg.path_length:.1f} m, {cfg.n_frames / dt:.1f} frames/s)")
     print(f"ground truth: {paths['ground_truth']}")
+    if odom is not None:
+        where = "/tf (odom -> base_link)" if args.wheel_odom_on == "tf" else "/odom"
+        print(f"wheel odometry: {where}, scale {odom.scale:+g}, wheelbase {odom.wheelbase:+g}, "
+              f"drift {odom.drift_deg_per_m:g} deg/m, noise {odom.noise:g} m/sqrt(m)")
     return 0
 
 

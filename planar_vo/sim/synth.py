@@ -889,8 +889,50 @@ def _write_tum(path: str, stamps: np.ndarray, poses: np.ndarray, cfg: SynthConfi
                                 f"layout={cfg.layout} seed={cfg.seed} frames={cfg.n_frames} texture={cfg.texture}")
 
 
+#: MCAP metadata record holding a synthetic log's wheel odometry parameters.
+WHEEL_ODOM_METADATA = "planar_vo.wheel_odometry"
+
+
+def _wheel_odom_samples(cfg: SynthConfig, scene: Scene, model) -> tuple:
+    """``(stamps (M,), T_odom_base (M, 3), rate_hz, twists (M, 3))`` of the simulated wheel
+    odometry: from the first frame to the last, at ``model.rate_hz`` but never slower than
+    the frames, driven by the true base path."""
+    from planar_vo.io.wheel_odom import se2_between_many, simulate_wheel_odometry
+
+    rate = max(float(model.rate_hz), cfg.rate_hz)
+    t_end = (cfg.n_frames - 1) / cfg.rate_hz
+    n = int(math.floor(t_end * rate + 1e-9)) + 1
+    t = np.arange(n) / rate
+    if t[-1] < t_end - 1e-9:
+        t = np.append(t, t_end)
+    P = simulate_wheel_odometry(_poses_at(cfg, scene, t), model)
+    tw = np.zeros_like(P)
+    if len(P) > 1:
+        tw[1:] = se2_between_many(P[:-1], P[1:]) / np.diff(t)[:, None]
+        tw[0] = tw[1]
+    return cfg.start_stamp + t, P, rate, tw
+
+
+class _OdomStream:
+    """Writes a log's simulated wheel odometry in stamp order, interleaved with the frames,
+    after its parameters as the metadata record ``WHEEL_ODOM_METADATA``."""
+
+    def __init__(self, cfg: SynthConfig, scene: Scene, model, writer, on: str):
+        self.stamps, self.poses, rate, self.twists = _wheel_odom_samples(cfg, scene, model)
+        self.writer, self.on, self.next = writer, on, 0
+        writer.add_metadata(WHEEL_ODOM_METADATA, {**model.metadata(), "on": on, "rate_hz": repr(rate)})
+
+    def write_until(self, stamp: float) -> None:
+        while self.next < len(self.stamps) and self.stamps[self.next] <= stamp:
+            i = self.next
+            self.writer.write_wheel_odometry(self.stamps[i], se2_to_matrix(self.poses[i]), on=self.on,
+                                             twist=self.twists[i])
+            self.next += 1
+
+
 def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_encoding: str = "jpeg",
-                    depth_encoding: str = "png", progress: bool = True, container: str = "mcap") -> dict:
+                    depth_encoding: str = "png", progress: bool = True, container: str = "mcap",
+                    wheel_odom=None, wheel_odom_on: str = "odom") -> dict:
     """Render ``cfg`` into an MCAP log plus ``<out>.gt.tum``; returns ``{'log': ..., 'ground_truth': ...}``.
 
     The log looks like an iai_kinect2 recording (``/kinect2/qhd/...`` images and
@@ -898,6 +940,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     ``ros2`` profile, or uses the Foxglove schemas in the ``foxglove`` profile.
     ``container`` (:data:`planar_vo.io.rosbags_writer.CONTAINERS`) writes the same
     messages as a ROS 1 bag, a rosbag2 folder or a ROS 1-profile MCAP instead.
+    ``wheel_odom`` (a :class:`~planar_vo.io.wheel_odom.WheelOdomModel`) adds wheel odometry on
+    ``/odom`` or (``wheel_odom_on="tf"``) ``/tf``, parameters in the metadata (:class:`_OdomStream`).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -920,6 +964,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
         raise InputError(f"synthetic log {out}: {exc}") from None
 
     def put(frame: SynthFrame) -> None:
+        if odom is not None:
+            odom.write_until(frame.rgbd.stamp)
         writer.write(frame.rgbd)
         writer.write_ground_truth(frame.rgbd.stamp, frame.T_world_cam)
 
@@ -928,6 +974,7 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
     # encoders and most numpy work release the GIL)
     with writer, ThreadPoolExecutor(max_workers=1) as pool:
         pending = None
+        odom = _OdomStream(cfg, renderer.scene, wheel_odom, writer, wheel_odom_on) if wheel_odom else None
         twists = _twists_at(cfg, renderer.scene, stamps - cfg.start_stamp)
         for i, f in enumerate(renderer.render_stream(poses, np.arange(cfg.n_frames), stamps, twists)):
             T_wc[i] = f.T_world_cam
@@ -940,6 +987,8 @@ def write_synth_log(cfg: SynthConfig, out_path, *, profile: str = "ros2", color_
                       end="", file=sys.stderr, flush=True)
         if pending is not None:
             pending.result()
+        if odom is not None:
+            odom.write_until(math.inf)
     if progress:
         print(file=sys.stderr)
     _write_tum(gt_path, stamps, T_wc, cfg)
