@@ -98,6 +98,7 @@ class RosbagsRGBDLog(McapRGBDLog):
         RGBDLog.__init__(self, path)
         self.sync_tolerance = float(sync_tolerance)
         self._intrinsics_override = intrinsics
+        self._odom_cache: dict = {}  # --odom-topic -> WheelOdometry or None (as McapRGBDLog)
         self._reader = None
         self.size = _size(self.path)
         self.profile = ""

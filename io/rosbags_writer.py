@@ -8,6 +8,7 @@ written by ``rosbags``' bag writers (or ``mcap``'s, for the ROS 1 profile of MCA
 """
 from __future__ import annotations
 
+import json
 from concurrent.futures import ThreadPoolExecutor
 
 from planar_vo.io import messages as m
@@ -101,6 +102,17 @@ class RosLogWriter(RGBDLogWriter):
             self._writer.add_message(conn, log_time=t, data=data, publish_time=t)
         else:
             self._call(self._writer.write, conn, t, data)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """``name`` as an MCAP metadata record (``mcap-ros1``), as one ``custom_data`` entry of
+        a rosbag2 folder's metadata.yaml (``name`` -> the dict as JSON text), and nowhere in a
+        ROS 1 bag, whose format has no place for it (its messages carry everything read)."""
+        self._check_open()
+        data = {str(k): str(v) for k, v in data.items()}
+        if self.container == "mcap-ros1":
+            self._writer.add_metadata(name, data)
+        elif self.container.startswith("rosbag2"):
+            self._call(self._writer.set_custom_data, name, json.dumps(data, sort_keys=True))
 
     def _finish(self) -> None:
         if self.container == "mcap-ros1":

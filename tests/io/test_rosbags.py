@@ -284,3 +284,68 @@ def test_run_flag_chooses_the_poses_format(logs, tmp_path):
         assert schema in {s.name for s in summary.schemas.values()}
         back = read_poses_mcap(out / "poses.mcap")["raw"]
         np.testing.assert_allclose(back.poses, read_tum_trajectory(out / "raw.tum").poses, atol=1e-9)
+
+
+# ---------------------------------------------------------------- wheel odometry
+#: name -> (container, profile, output name, where the odometry goes)
+ODOM_LOGS = {**{name: (*spec, "odom") for name, spec in CONTAINERS.items()},
+             "bag_tf": ("bag", "ros2", "log.bag", "tf"),
+             "rosbag2_sqlite3_tf": ("rosbag2-sqlite3", "ros2", "log", "tf"),
+             "ros1_mcap_tf": ("mcap-ros1", "ros2", "log.mcap", "tf")}
+
+
+@pytest.fixture(scope="module")
+def odom_logs(tmp_path_factory) -> dict[str, Path]:
+    """The 10-frame corridor of ``logs`` with wheel odometry (+2 % scale, seeded noise) in
+    every container, on /odom and, for the ROS 1 and rosbag2 containers, on /tf."""
+    from planar_vo.io.wheel_odom import WheelOdomModel
+    cfg = SynthConfig(layout="straight", seed=4, n_frames=10, speed=2.0).at_resolution(320, 180)
+    out = {}
+    for name, (container, profile, fname, on) in ODOM_LOGS.items():
+        path = tmp_path_factory.mktemp(f"odom_{name}") / fname
+        write_synth_log(cfg, path, profile=profile, container=container, progress=False,
+                        wheel_odom=WheelOdomModel(seed=4), wheel_odom_on=on)
+        out[name] = path
+    return out
+
+
+def test_every_container_gives_the_same_wheel_odometry(odom_logs):
+    with open_log(odom_logs["ros2_mcap"]) as log:
+        ref, gt = log.wheel_odometry(), log.ground_truth
+    assert len(ref.stamps) == 46 and ref.stamps[-1] - ref.stamps[0] == pytest.approx(0.9)  # 50 Hz
+    # the base's path (1.06 m) is close to the camera's (1.08 m; the camera swings with the weave)
+    odo_len = np.linalg.norm(np.diff(ref.poses[:, :2], axis=0), axis=1).sum()
+    cam_len = np.linalg.norm(np.diff(gt.poses[:, :3, 3], axis=0), axis=1).sum()
+    assert odo_len == pytest.approx(cam_len, rel=0.03)
+    for name, path in odom_logs.items():
+        with open_log(path) as log:
+            odo = log.wheel_odometry()
+            described = log.summary().wheel_odometry
+        assert odo is not None, name
+        assert odo.topic == ("/tf" if name.endswith("_tf") else "/odom"), name
+        np.testing.assert_allclose(odo.stamps, ref.stamps, rtol=0, atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(odo.poses, ref.poses, rtol=0, atol=1e-9, err_msg=name)
+        assert "46 samples" in described, name
+
+
+def test_synth_keeps_the_odometry_parameters_in_rosbag2_metadata(odom_logs):
+    import json
+
+    import yaml
+    meta = yaml.safe_load((odom_logs["rosbag2_mcap"] / "metadata.yaml").read_text())
+    custom = meta["rosbag2_bagfile_information"]["custom_data"]
+    assert json.loads(custom["planar_vo.wheel_odometry"])["scale"] == "0.02"
+
+
+def test_run_gives_identical_wheel_odom_tum_in_every_container(odom_logs, tmp_path_factory):
+    from planar_vo.pipeline import run
+    config = load_config(None, {"output": {"plot": False}})
+    outs = {}
+    for name in ("ros2_mcap", "bag", "rosbag2_sqlite3", "rosbag2_mcap", "ros1_mcap", "bag_tf"):
+        outs[name] = tmp_path_factory.mktemp(f"odom_run_{name}")
+        run(odom_logs[name], outs[name], config, progress=False)
+    ref = outs["ros2_mcap"]
+    assert len(read_tum_trajectory(ref / "wheel_odom.tum")) == 10
+    for name, out in outs.items():
+        for tum in ("wheel_odom.tum", "smoothed.tum"):
+            assert (out / tum).read_bytes() == (ref / tum).read_bytes(), (name, tum)
