@@ -43,7 +43,8 @@ from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
 from planar_vo.prefetch import Prefetcher
 from planar_vo.progress import Progress
-from planar_vo.wheel_fusion import motion_with_wheel_odometry, wheel_steps_for_run, write_wheel_outputs
+from planar_vo.wheel_fusion import (motion_with_wheel_odometry, wheel_steps_for_run, wheel_trajectory,
+                                    write_wheel_outputs)
 
 
 @dataclass
@@ -183,7 +184,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
     clock.cpu["outputs_import_background"] = prepared.result()
     with clock.stage("write"):
-        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format)
+        wheel_traj = wheel_trajectory(loop.stamps, wheel.odometry, T_base_cam) if wheel else None
+        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj)
         files["steps"] = _write_steps(out / "steps.csv", loop.steps)
         wheel_section, wheel_files = write_wheel_outputs(out, wheel, loop.stamps, T_base_cam,
                                                          getattr(graph, "stats", {}))
@@ -428,9 +430,12 @@ def _jsonable(obj):
 
 
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt,
-                   log_format: str = "") -> dict:
+                   log_format: str = "", wheel_traj=None) -> dict:
+    """raw/smoothed.tum, config.yaml, poses.mcap and trajectory.png; ``wheel_traj`` (the wheel
+    odometry alone, as in wheel_odom.tum, or None) goes into poses.mcap and the plot too."""
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
+    wheel = {} if wheel_traj is None else {"wheel_odom": wheel_traj}
     files = {}
     write_tum_trajectory(out / "raw.tum", raw_traj)
     write_tum_trajectory(out / "smoothed.tum", smooth_traj)
@@ -441,12 +446,13 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
         transforms = [(s, "odom", "base_link", se2_to_matrix(p)) for s, p in zip(stamps, smoothed)]
         transforms.append((stamps[0], "base_link", "camera_optical_frame", T_base_cam))
         fmt = config.output.poses_format
-        write_poses_mcap(out / "poses.mcap", {"raw": raw_traj, "smoothed": smooth_traj}, transforms=transforms,
-                         format=poses_format_for(log_format) if fmt == "auto" else fmt)
+        write_poses_mcap(out / "poses.mcap", {"raw": raw_traj, "smoothed": smooth_traj, **wheel},
+                         transforms=transforms, format=poses_format_for(log_format) if fmt == "auto" else fmt)
         files["poses_mcap"] = str(out / "poses.mcap")
     if config.output.plot:
         from planar_vo.plotting import plot_trajectories
 
-        plot_trajectories(out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj}, gt)
+        plot_trajectories(out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj,
+                                                   **{"wheel odometry": t for t in wheel.values()}}, gt)
         files["plot"] = str(out / "trajectory.png")
     return files

@@ -8,13 +8,16 @@ import numpy as np
 from planar_vo.io.trajectory import associate_stamps
 
 _STYLES = {"raw": dict(color="tab:orange", lw=1.2, ls="--"), "smoothed": dict(color="tab:blue", lw=1.8),
-           "ground truth": dict(color="k", lw=1.0, alpha=0.7)}
+           "ground truth": dict(color="k", lw=1.0, alpha=0.7),
+           "wheel odometry": dict(color="tab:green", lw=1.2, ls=":")}
 
 
 def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, title: str | None = None) -> None:
     """Plot camera positions seen from above (x forward, y left of the first frame).
 
-    ``trajectories``: name -> Trajectory (``T_odom_cam``). ``ground_truth``: Trajectory in
+    ``trajectories``: name -> Trajectory (``T_odom_cam``), drawn in order and labelled by
+    name (``raw``, ``smoothed`` and ``wheel odometry`` have their own styles); the first
+    one's start is marked. ``ground_truth``: Trajectory in
     its own world frame; it is brought into ``odom`` by aligning its pose at the first
     estimated stamp with the first estimated pose, so the plot shows drift as it grew.
     """

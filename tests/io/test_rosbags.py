@@ -337,15 +337,56 @@ def test_synth_keeps_the_odometry_parameters_in_rosbag2_metadata(odom_logs):
     assert json.loads(custom["planar_vo.wheel_odometry"])["scale"] == "0.02"
 
 
-def test_run_gives_identical_wheel_odom_tum_in_every_container(odom_logs, tmp_path_factory):
+@pytest.fixture(scope="module")
+def odom_runs(odom_logs, tmp_path_factory) -> dict[str, Path]:
     from planar_vo.pipeline import run
     config = load_config(None, {"output": {"plot": False}})
     outs = {}
-    for name in ("ros2_mcap", "bag", "rosbag2_sqlite3", "rosbag2_mcap", "ros1_mcap", "bag_tf"):
+    for name in ("ros2_mcap", "foxglove_mcap", "bag", "rosbag2_sqlite3", "rosbag2_mcap", "ros1_mcap", "bag_tf"):
         outs[name] = tmp_path_factory.mktemp(f"odom_run_{name}")
         run(odom_logs[name], outs[name], config, progress=False)
-    ref = outs["ros2_mcap"]
+    return outs
+
+
+def test_run_gives_identical_wheel_odom_tum_in_every_container(odom_runs):
+    ref = odom_runs["ros2_mcap"]
     assert len(read_tum_trajectory(ref / "wheel_odom.tum")) == 10
-    for name, out in outs.items():
+    for name, out in odom_runs.items():
         for tum in ("wheel_odom.tum", "smoothed.tum"):
             assert (out / tum).read_bytes() == (ref / tum).read_bytes(), (name, tum)
+
+
+def test_poses_mcap_carries_the_wheel_odometry(odom_runs):
+    """Its own topics in both formats, read back equal to wheel_odom.tum."""
+    from mcap.reader import make_reader
+    for name in ("ros2_mcap", "foxglove_mcap", "bag"):
+        out = odom_runs[name]
+        with open(out / "poses.mcap", "rb") as f:
+            topics = {ch.topic for ch in make_reader(f).get_summary().channels.values()}
+        kind = "pose" if name == "foxglove_mcap" else "odom"
+        assert {f"/planar_vo/wheel_odom/{kind}", "/planar_vo/wheel_odom/path"} <= topics, name
+        wheel = read_tum_trajectory(out / "wheel_odom.tum")
+        back = read_poses_mcap(out / "poses.mcap")
+        assert set(back) == {"raw", "smoothed", "wheel_odom"}, name
+        np.testing.assert_allclose(back["wheel_odom"].stamps, wheel.stamps, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(back["wheel_odom"].poses, wheel.poses, rtol=0, atol=1e-6)
+        # not the smoothed path: the odometry's +2 % scale shows over the ~1 m
+        assert np.abs(back["wheel_odom"].poses[-1, :3, 3] - back["smoothed"].poses[-1, :3, 3]).max() > 5e-3
+
+
+def test_trajectory_png_draws_the_wheel_odometry(odom_logs, tmp_path, monkeypatch):
+    """The plot's legend: ground truth, raw, smoothed, wheel odometry (captured at savefig)."""
+    import matplotlib.figure
+
+    from planar_vo.pipeline import run
+    labels = []
+    real_savefig = matplotlib.figure.Figure.savefig
+
+    def savefig(fig, *args, **kwargs):
+        labels.extend(fig.axes[0].get_legend_handles_labels()[1])
+        return real_savefig(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+    run(odom_logs["ros2_mcap"], tmp_path, load_config(None, {}), progress=False)
+    assert (tmp_path / "trajectory.png").stat().st_size > 0
+    assert labels == ["ground truth", "raw", "smoothed", "wheel odometry", "start"]
