@@ -372,6 +372,18 @@ def test_poses_mcap_carries_the_wheel_odometry(odom_runs):
         np.testing.assert_allclose(back["wheel_odom"].poses, wheel.poses, rtol=0, atol=1e-6)
         # not the smoothed path: the odometry's +2 % scale shows over the ~1 m
         assert np.abs(back["wheel_odom"].poses[-1, :3, 3] - back["smoothed"].poses[-1, :3, 3]).max() > 5e-3
+    # and evo reads it as it reads the smoothed path (`evo_traj bag2 poses.mcap /planar_vo/wheel_odom/odom`)
+    from evo.tools import file_interface
+    from rosbags.rosbag2 import Reader
+    reader = Reader(odom_runs["bag"] / "poses.mcap")
+    reader.open()
+    try:
+        traj = file_interface.read_bag_trajectory(reader, "/planar_vo/wheel_odom/odom")
+    finally:
+        reader.close()
+    wheel = read_tum_trajectory(odom_runs["bag"] / "wheel_odom.tum")
+    np.testing.assert_allclose(traj.timestamps, wheel.stamps, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(traj.poses_se3, wheel.poses, rtol=0, atol=1e-6)
 
 
 def test_trajectory_png_draws_the_wheel_odometry(odom_logs, tmp_path, monkeypatch):
