@@ -194,7 +194,7 @@ class RGBDLogWriter:
                       lambda: m.ros2_tf_message(tf), lambda: m.foxglove_frame_transforms(tf))
             return
         self._put(self.topics.odom, stamp, "nav_msgs/msg/Odometry",
-                  lambda: m.ros2_odometry(stamp, "odom", self.base_frame, T, twist),
+                  lambda: m.ros2_odometry(stamp, "odom", self.base_frame, T, twist, pose_var=(1e-4, 1e-4, 1e-3)),
                   lambda: m.foxglove_pose_in_frame(stamp, "odom", T))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:

@@ -154,32 +154,27 @@ def ros2_pose_stamped(stamp: float, frame_id: str, T: np.ndarray) -> dict:
 _ZERO36 = [0.0] * 36
 
 
-def ros2_odometry(stamp: float, frame_id: str, child_frame_id: str, T: np.ndarray) -> dict:
-    """nav_msgs/Odometry with pose ``T_frame_child``; twist and covariances zero (unknown)."""
-    t, q = _xyz_quat(T)
-    zero = {"x": 0.0, "y": 0.0, "z": 0.0}
-    return {"header": ros2_header(stamp, frame_id), "child_frame_id": child_frame_id,
-            "pose": {"pose": {"position": t, "orientation": q}, "covariance": _ZERO36},
-            "twist": {"twist": {"linear": zero, "angular": dict(zero)}, "covariance": _ZERO36}}
-
-
 def ros2_path(stamp: float, frame_id: str, poses: np.ndarray) -> dict:
     """nav_msgs/Path of ``poses`` (N, 4, 4), every pose stamped ``stamp``."""
     return {"header": ros2_header(stamp, frame_id),
             "poses": [ros2_pose_stamped(stamp, frame_id, T) for T in poses]}
+
+
 def ros2_odometry(stamp: float, frame_id: str, child_frame_id: str, T: np.ndarray,
-                  twist=(0.0, 0.0, 0.0), pose_var=(1e-4, 1e-4, 1e-3)) -> dict:
+                  twist=(0.0, 0.0, 0.0), pose_var=None) -> dict:
     """nav_msgs/Odometry: pose ``T`` (4, 4) of ``child_frame_id`` in ``frame_id``; ``twist``
-    ``(vx, vy, omega)`` in the child frame; ``pose_var`` the x, y, yaw variances (diagonal)."""
+    ``(vx, vy, omega)`` in the child frame; ``pose_var`` the x, y, yaw variances (diagonal;
+    z, roll and pitch then 1e6, not measured by a planar base), or None: covariances zero (unknown)."""
     t, q = _xyz_quat(T)
-    pc = [0.0] * 36
-    pc[0], pc[7], pc[35] = (float(v) for v in pose_var)
-    pc[14] = pc[21] = pc[28] = 1e6  # z, roll, pitch: not measured by a planar base
+    pc = list(_ZERO36)
+    if pose_var is not None:
+        pc[0], pc[7], pc[35] = (float(v) for v in pose_var)
+        pc[14] = pc[21] = pc[28] = 1e6
     tw = {"linear": {"x": float(twist[0]), "y": float(twist[1]), "z": 0.0},
           "angular": {"x": 0.0, "y": 0.0, "z": float(twist[2])}}
     return {"header": ros2_header(stamp, frame_id), "child_frame_id": child_frame_id,
             "pose": {"pose": {"position": t, "orientation": q}, "covariance": pc},
-            "twist": {"twist": tw, "covariance": [0.0] * 36}}
+            "twist": {"twist": tw, "covariance": list(_ZERO36)}}
 
 
 def _fill_pose(pose, T: np.ndarray) -> None:
