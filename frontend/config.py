@@ -188,7 +188,8 @@ class OdometryConfig:
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised
-    #: RMS 0.2-0.4); at these values every estimator's normalised RMS is 0.5-1.5.
+    #: RMS 0.2-0.4); at these values the direction-plus-point, 2-point and partial steps'
+    #: normalised RMS is 0.5-1.5 there (bridged steps: 0.04-0.6, their own model).
     min_sigma_xy: float = 0.001
     min_sigma_theta_deg: float = 0.02
 

@@ -81,7 +81,7 @@ def test_direction_plus_point_states_the_uncertainty_of_a_heading_difference(wob
     to both, cancel; stated as if independent, the yaw sigma was ~4x its real error, and
     through the lever arm of the points so was the sideways sigma. Error over stated sigma
     must now have an RMS in the 0.5-2 band for the yaw; sideways, where on this clean
-    render the 2 mm floor for unmodelled errors dominates, it must not be overconfident."""
+    render the floor for unmodelled errors dominates, it must not be overconfident."""
     K, mount, frames = wobble
     odo = PlanarOdometry(K, mount)
     results = [odo.process(f.rgbd) for f in frames]
