@@ -187,8 +187,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
         wheel_traj = wheel_trajectory(loop.stamps, wheel.odometry, T_base_cam) if wheel else None
         files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj)
         files["steps"] = _write_steps(out / "steps.csv", loop.steps)
-        wheel_section, wheel_files = write_wheel_outputs(out, wheel, loop.stamps, T_base_cam,
-                                                         getattr(graph, "stats", {}))
+        wheel_section, wheel_files = write_wheel_outputs(out, wheel, wheel_traj, getattr(graph, "stats", {}))
         files.update(wheel_files)
     clock.finish()
     report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock, wheel_section)

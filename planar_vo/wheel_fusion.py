@@ -47,14 +47,14 @@ def wheel_trajectory(stamps, odometry, T_base_cam):
                       child_frame_id="camera_optical_frame")
 
 
-def write_wheel_outputs(out: Path, steps, stamps, T_base_cam, backend_stats: dict) -> tuple[dict, dict]:
-    """Write ``wheel_odom.tum``; returns ``(report section, {name: path})``."""
+def write_wheel_outputs(out: Path, steps, traj, backend_stats: dict) -> tuple[dict, dict]:
+    """Write ``wheel_odom.tum`` (``traj``: :func:`wheel_trajectory` of the run, or None);
+    returns ``(report section, {name: path})``."""
     from planar_vo.io.trajectory import write_tum_trajectory
 
     if steps is None:
         return {"used": False}, {}
     odo, cfg = steps.odometry, steps.config
-    traj = wheel_trajectory(stamps, odo, T_base_cam)
     files = {}
     if traj is not None:
         write_tum_trajectory(Path(out) / WHEEL_TUM, traj)
