@@ -200,6 +200,32 @@ def foxglove_poses_in_frame(stamp: float, frame_id: str, poses: np.ndarray):
     return msg
 
 
+def ros2_marker_lines(stamp: float, frame_id: str, segments: np.ndarray, ns: str) -> dict:
+    """visualization_msgs/MarkerArray with one LINE_LIST marker: ``segments`` (M, 2, 3)
+    endpoints in ``frame_id`` (RViz and Foxglove draw it; an empty list deletes nothing)."""
+    points = [{"x": float(p[0]), "y": float(p[1]), "z": float(p[2])} for p in np.asarray(segments).reshape(-1, 3)]
+    marker = {"header": ros2_header(stamp, frame_id), "ns": ns, "id": 0, "type": 5, "action": 0,  # LINE_LIST, ADD
+              "pose": {"orientation": {"w": 1.0}}, "scale": {"x": 0.03},
+              "color": {"r": 1.0, "g": 0.2, "b": 0.6, "a": 1.0}, "points": points}
+    return {"markers": [marker]}
+
+
+def foxglove_scene_lines(stamp: float, frame_id: str, segments: np.ndarray, ns: str):
+    """foxglove.SceneUpdate with one entity ``ns`` holding a LINE_LIST of ``segments`` (M, 2, 3)."""
+    from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+    msg = SceneUpdate()
+    entity = msg.entities.add(frame_id=frame_id, id=ns)
+    _fox_time(entity.timestamp, stamp)
+    line = entity.lines.add(type=LinePrimitive.LINE_LIST, thickness=3.0, scale_invariant=True)
+    line.pose.orientation.w = 1.0
+    line.color.r, line.color.g, line.color.b, line.color.a = 1.0, 0.2, 0.6, 1.0
+    for p in np.asarray(segments).reshape(-1, 3):
+        q = line.points.add()
+        q.x, q.y, q.z = (float(v) for v in p)
+    return msg
+
+
 # ------------------------------------------------------------------------- parsers
 
 @dataclass

@@ -112,13 +112,15 @@ def poses_format_for(log_format: str) -> str:
     return "ros2" if "ROS" in log_format or "rosbag" in log_format else "foxglove"
 
 
-def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=None,
+def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=None, lines=None,
                      path_period: float = 1.0, path_max_poses: int = 256, format: str = "foxglove") -> None:
     """Write trajectories for Foxglove and ROS tools, atomically.
 
     ``trajectories``: name -> :class:`Trajectory` (names become topic segments).
     ``transforms``: optional list of ``(stamp, parent, child, T (4, 4))`` written on ``/tf``
-    (one message per distinct stamp). ``format``:
+    (one message per distinct stamp). ``lines``: optional ``(stamp, name, frame_id, segments
+    (M, 2, 3))`` drawn as one line list on ``/planar_vo/NAME`` (e.g. the loop closures between
+    the two poses they join): ``foxglove.SceneUpdate`` or ``visualization_msgs/MarkerArray``. ``format``:
 
     * ``foxglove``: ``foxglove.PoseInFrame`` per pose on ``/planar_vo/N/pose``,
       ``foxglove.PosesInFrame`` paths on ``/planar_vo/N/path``, ``foxglove.FrameTransforms``.
@@ -138,6 +140,9 @@ def write_poses_mcap(path, trajectories: dict[str, Trajectory], *, transforms=No
             raise ValueError(f"trajectory name {name!r}: use letters, digits, '_', '-' (and '/')")
         _check_traj(traj, f"write_poses_mcap[{name}]")
     events = _pose_events(trajectories, transforms, path_period, path_max_poses, format == "ros2")
+    if lines is not None:
+        events.append(_lines_event(*lines, format == "ros2"))
+        events.sort(key=lambda e: (e[0], e[1]))
     if format == "ros2":
         _write_poses_ros2(Path(path), events)
         return
@@ -178,6 +183,14 @@ def _pose_events(trajectories, transforms, path_period: float, path_max_poses: i
         events.append((s, 0, "/tf", "tf2_msgs/msg/TFMessage", lambda g=group: tf(g)))
     events.sort(key=lambda e: (e[0], e[1]))
     return events
+
+
+def _lines_event(stamp: float, name: str, frame_id: str, segments, ros2: bool) -> tuple:
+    seg = np.asarray(segments, dtype=float).reshape(-1, 2, 3)
+    if ros2:
+        return (stamp, 3, f"/planar_vo/{name}", "visualization_msgs/msg/MarkerArray",
+                lambda: m.ros2_marker_lines(stamp, frame_id, seg, name))
+    return (stamp, 3, f"/planar_vo/{name}", None, lambda: m.foxglove_scene_lines(stamp, frame_id, seg, name))
 
 
 def _write_poses_ros2(path: Path, events: list) -> None:

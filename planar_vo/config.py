@@ -16,7 +16,7 @@ import yaml
 from planar_vo.backend.config import BackendConfig
 from planar_vo.configtools import from_dict, merge, to_dict
 from planar_vo.core.errors import ConfigError
-from planar_vo.frontend.config import FrontendConfig
+from planar_vo.frontend.config import FrontendConfig, PlaceConfig
 
 
 @dataclass
@@ -58,6 +58,38 @@ class OutputConfig:
 
 
 @dataclass
+class LoopConfig:
+    """Keyframes and candidates (verification settings are ``places``)."""
+
+    #: Off: no keyframes, no closures (the run is then frame-to-frame plus Manhattan priors).
+    enabled: bool = True
+    #: A keyframe every this much travelled path (m) or turned heading (deg), whichever first.
+    keyframe_distance_m: float = 0.5
+    keyframe_angle_deg: float = 20.0
+    #: Keyframes within this much travelled path of the newest are not candidates.
+    recent_path_m: float = 4.0
+    #: Candidates per keyframe from the place-recognition index.
+    appearance_candidates: int = 2
+    #: Candidates per keyframe from proximity (the nearest in Mahalanobis distance).
+    proximity_candidates: int = 2
+    #: Proximity gate: chi-square of the 2-D position, with the places a keyframe sees
+    #: (``view_radius_m``) added to the chain's covariance; 13.8 = 99.9 % for 2 dof.
+    proximity_chi2: float = 13.8
+    view_radius_m: float = 1.0
+    #: Views overlap only if the headings differ by less than this (deg), plus 3 sigma.
+    view_angle_deg: float = 45.0
+
+    def __post_init__(self) -> None:
+        for name in ("keyframe_distance_m", "keyframe_angle_deg", "proximity_chi2", "view_radius_m",
+                     "view_angle_deg"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"config key 'loops.{name}' must be > 0, got {getattr(self, name)}")
+        for name in ("recent_path_m", "appearance_candidates", "proximity_candidates"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"config key 'loops.{name}' must be >= 0, got {getattr(self, name)}")
+
+
+@dataclass
 class RunConfig:
     input: InputConfig = field(default_factory=InputConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
@@ -65,6 +97,10 @@ class RunConfig:
     #: ``batch``: Levenberg-Marquardt over the whole run; ``online``: iSAM2 per frame.
     solver: Literal["batch", "online"] = "batch"
     output: OutputConfig = field(default_factory=OutputConfig)
+    #: Loop closure: keyframes and candidates (:mod:`planar_vo.loops`) ...
+    loops: LoopConfig = field(default_factory=LoopConfig)
+    #: ... and place recognition and verification (:mod:`planar_vo.frontend.places`).
+    places: PlaceConfig = field(default_factory=PlaceConfig)
 
 
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> RunConfig:

@@ -1,5 +1,6 @@
-"""Evaluate a run folder against ground truth: raw and smoothed side by side, and the
-wheel odometry alone as a third column when the run had it (``wheel_odom.tum``)."""
+"""Evaluate a run folder against ground truth: raw and smoothed side by side, the smoothed
+trajectory without loop closures when the run closed loops (``smoothed_no_loops.tum``), and
+the wheel odometry alone when the run had it (``wheel_odom.tum``)."""
 from __future__ import annotations
 
 import json
@@ -68,8 +69,8 @@ def find_ground_truth(run_dir: Path):
 
 
 def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
-    """Errors of ``raw.tum``, ``smoothed.tum`` (and ``wheel_odom.tum`` when present) in
-    ``run_dir`` against ``gt`` (a Trajectory)."""
+    """Errors of ``raw.tum``, ``smoothed.tum`` (and ``smoothed_no_loops.tum``, ``wheel_odom.tum``
+    when present) in ``run_dir`` against ``gt`` (a Trajectory)."""
     run_dir = Path(run_dir)
     if not (run_dir / "smoothed.tum").exists():
         raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
@@ -78,7 +79,7 @@ def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     if gt is None:
         raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
     result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
-    names = ["raw", "smoothed"] + (["wheel_odom"] if (run_dir / "wheel_odom.tum").exists() else [])
+    names = [n for n, _ in COLUMNS if n in ("raw", "smoothed") or (run_dir / f"{n}.tum").exists()]
     for name in names:
         est = file_interface.read_tum_trajectory_file(run_dir / f"{name}.tum")
         result[name] = trajectory_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses,
@@ -86,19 +87,23 @@ def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
     return result
 
 
-#: Columns of the table: result key, heading (wheel odometry only when the run had it).
-COLUMNS = (("raw", "raw"), ("smoothed", "smoothed"), ("wheel_odom", "wheel odom"))
+#: Columns of the table: result key (= the run folder's file ``KEY.tum``), heading. The
+#: smoothed trajectory without loop closures and the wheel odometry alone appear only when
+#: the run wrote them (it closed loops; the log had wheel odometry).
+COLUMNS = (("raw", "raw"), ("smoothed_no_loops", "smoothed, no loops"), ("smoothed", "smoothed"),
+           ("wheel_odom", "wheel odom"))
 
 
 def format_table(result: dict) -> str:
     cols = [(k, h) for k, h in COLUMNS if k in result]
-    lines = [f"{'metric':<30}" + "".join(f"{h:>14}" for _, h in cols)]
+    widths = [max(14, len(h) + 2) for _, h in cols]
+    lines = [f"{'metric':<30}" + "".join(f"{h:>{w}}" for (_, h), w in zip(cols, widths))]
     for key, label, fmt in ROWS:
         cells = []
         for name, _ in cols:
             v = result[name][key]
             cells.append("n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v))
-        lines.append(f"{label:<30}" + "".join(f"{c:>14}" for c in cells))
+        lines.append(f"{label:<30}" + "".join(f"{c:>{w}}" for c, w in zip(cells, widths)))
     for name, heading in cols:
         if result[name].get("ate_alignment") == "first_pose":
             lines.append(f"{heading}: ATE after aligning the first poses (the ground truth is a straight line, "

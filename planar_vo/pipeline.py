@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import time
 from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
@@ -37,6 +38,7 @@ from planar_vo.core.errors import InputError, PartialResult
 from planar_vo.core.geometry import base_poses_to_cam_matrices, mount_angles, se2_to_matrix
 from planar_vo.core.types import Trajectory
 from planar_vo.frontend.odometry import PlanarOdometry
+from planar_vo.loops import LoopCloser
 from planar_vo.io.atomic import write_text_atomic
 from planar_vo.io.cliargs import open_log_with_overrides
 from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write_poses_mcap, write_tum_trajectory
@@ -166,7 +168,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     with open_input(log_path, config) as log:
         odometry, graph = _level(log, config)
         wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
-        loop = _process_frames(log, odometry, graph, wheel, config, clock, progress)
+        closer = _loop_closer(log, odometry, graph, config)
+        loop = _process_frames(log, odometry, graph, wheel, closer, config, clock, progress)
         stats = dict(log.stats)  # before the summary, which may read the log again
         with clock.stage("summary"):
             # After a pass over the whole log this reads nothing: the pass recorded what it needs.
@@ -179,18 +182,23 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                          + "; check the topics with 'planar-vo info'")
     with clock.stage("optimize"):
         raw, smoothed = _solve(graph, config)
+        no_loops = _solve_without_closures(graph, closer)
     if gt_path is not None:
         gt = read_tum_trajectory(gt_path)
     T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
     clock.cpu["outputs_import_background"] = prepared.result()
     with clock.stage("write"):
         wheel_traj = wheel_trajectory(loop.stamps, wheel.odometry, T_base_cam) if wheel else None
-        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj)
+        loops_section = closer.report() if closer is not None else {"enabled": False}
+        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj,
+                               closures=closer.accepted() if closer is not None else [])
+        files.update(_write_no_loops(out, loop.stamps, no_loops, T_base_cam))
         files["steps"] = _write_steps(out / "steps.csv", loop.steps)
         wheel_section, wheel_files = write_wheel_outputs(out, wheel, wheel_traj, getattr(graph, "stats", {}))
         files.update(wheel_files)
     clock.finish()
     report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock, wheel_section)
+    report["loop_closure"] = _jsonable(loops_section)
     write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
     files["report"] = str(out / "report.json")
     return RunResult(out, report, loop.partial, loop.stop_reason, files)
@@ -233,6 +241,21 @@ def _level(log, config: RunConfig):
     return odometry, graph
 
 
+#: report.json ``memory_mb_by_frame``: the process's resident memory every this many frames
+#: (flat on a long log when nothing grows with it but the graph's few numbers per pose).
+MEMORY_EVERY = 250
+
+
+def _resident_mb() -> float:
+    """The process's current resident set size (MB): /proc on Linux, else the peak."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError, IndexError):
+        import resource
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 @dataclass
 class _FrameLoop:
     """What the per-frame loop collected: colour stamps of the frames with a pose, step
@@ -244,9 +267,12 @@ class _FrameLoop:
     steps: list = field(default_factory=list)
     partial: bool = False
     stop_reason: str | None = None
+    memory: list = field(default_factory=list)  # (frames so far, resident MB) every MEMORY_EVERY frames
 
     def add(self, frame, result) -> None:
         self.stamps.append(frame.stamp)
+        if len(self.stamps) % MEMORY_EVERY == 0:
+            self.memory.append([len(self.stamps), round(_resident_mb(), 1)])
         self.statuses[result.step.status if result.step is not None else "first"] += 1
         self.frame_infos.append(frame_summary(result))
         if result.step is not None:
@@ -256,9 +282,18 @@ class _FrameLoop:
         return {k: v for k, v in self.statuses.items() if k != "first"}
 
 
-def _process_frames(log, odometry, graph, wheel, config: RunConfig, clock: _Stopwatch, progress: bool) -> _FrameLoop:
+def _loop_closer(log, odometry, graph, config: RunConfig) -> LoopCloser | None:
+    """The run's loop closer (None when ``loops.enabled`` is off)."""
+    if not config.loops.enabled:
+        return None
+    return LoopCloser(log.intrinsics, odometry.mount.T_base_cam, config.loops, config.places, graph)
+
+
+def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, clock: _Stopwatch,
+                    progress: bool) -> _FrameLoop:
     """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph (with
-    the wheel odometry's step over the same interval when ``wheel`` is given).
+    the wheel odometry's step over the same interval when ``wheel`` is given) -> offer it to
+    the loop closer (keyframes, candidates, verification, closure factors).
 
     The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
     both GIL-free for the most part, while the main thread works on earlier frames.
@@ -282,9 +317,14 @@ def _process_frames(log, odometry, graph, wheel, config: RunConfig, clock: _Stop
                 for k, v in result.timings.items():
                     timings[f"frontend.{k}"] += v
                 graph.add_frame(result, odometry=wheel.step(frame.stamp, result) if wheel else None)
+                t2, c2 = time.perf_counter(), time.thread_time()
+                timings["backend"] += t2 - t1
+                cpu["backend"] += c2 - c1
+                if closer is not None:
+                    closer.offer(frame, result, odometry.levelling.R_lev_cam)
                 t_wait = time.perf_counter()
-                timings["backend"] += t_wait - t1
-                cpu["backend"] += time.thread_time() - c1
+                timings["loops"] += t_wait - t2
+                cpu["loops"] += time.thread_time() - c2
                 loop.add(frame, result)
                 bar.update(len(loop.stamps), **loop.counts())
     except KeyboardInterrupt:
@@ -329,6 +369,7 @@ def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, con
         "wall_time_s": round(wall, 3),
         "fps": round(n / wall, 2) if wall > 0 else None,
         "fps_excluding_writing": round(n / max(wall - timings["write"], 1e-9), 2),
+        "memory_mb_by_frame": loop.memory,
         "solver": config.solver,
     }
 
@@ -429,9 +470,11 @@ def _jsonable(obj):
 
 
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt,
-                   log_format: str = "", wheel_traj=None) -> dict:
+                   log_format: str = "", wheel_traj=None, closures=()) -> dict:
     """raw/smoothed.tum, config.yaml, poses.mcap and trajectory.png; ``wheel_traj`` (the wheel
-    odometry alone, as in wheel_odom.tum, or None) goes into poses.mcap and the plot too."""
+    odometry alone, as in wheel_odom.tum, or None) goes into poses.mcap and the plot too;
+    ``closures``: ``(a, b)`` pose indices of the loop closures kept, drawn as lines between
+    the two smoothed camera positions."""
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
     wheel = {} if wheel_traj is None else {"wheel_odom": wheel_traj}
@@ -445,13 +488,41 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
         transforms = [(s, "odom", "base_link", se2_to_matrix(p)) for s, p in zip(stamps, smoothed)]
         transforms.append((stamps[0], "base_link", "camera_optical_frame", T_base_cam))
         fmt = config.output.poses_format
+        lines = (stamps[-1], "loop_closures", "odom", _closure_segments(smooth_traj, closures)) if closures else None
         write_poses_mcap(out / "poses.mcap", {"raw": raw_traj, "smoothed": smooth_traj, **wheel},
-                         transforms=transforms, format=poses_format_for(log_format) if fmt == "auto" else fmt)
+                         transforms=transforms, lines=lines,
+                         format=poses_format_for(log_format) if fmt == "auto" else fmt)
         files["poses_mcap"] = str(out / "poses.mcap")
     if config.output.plot:
         from planar_vo.plotting import plot_trajectories
 
         plot_trajectories(out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj,
-                                                   **{"wheel odometry": t for t in wheel.values()}}, gt)
+                                                   **{"wheel odometry": t for t in wheel.values()}}, gt,
+                          closures=_closure_segments(smooth_traj, closures))
         files["plot"] = str(out / "trajectory.png")
     return files
+
+
+def _closure_segments(traj: Trajectory, closures) -> np.ndarray:
+    """(M, 2, 3) camera positions joined by each closure ``(a, b)`` (pose indices)."""
+    P = traj.positions
+    return np.array([[P[a], P[b]] for a, b in closures], dtype=float).reshape(-1, 2, 3)
+
+
+def _solve_without_closures(graph, closer) -> np.ndarray | None:
+    """(N, 3) ``T_odom_base`` of the same graph without its loop closures (for ``evaluate``'s
+    side-by-side), or None when the run closed no loop."""
+    if closer is None or not closer.accepted():
+        return None
+    return graph.solve_without_closures()
+
+
+def _write_no_loops(out: Path, stamps, poses, T_base_cam) -> dict:
+    """``smoothed_no_loops.tum`` when the run closed loops; an older one is removed so that
+    a run folder never mixes runs."""
+    path = out / "smoothed_no_loops.tum"
+    if poses is None:
+        path.unlink(missing_ok=True)
+        return {}
+    write_tum_trajectory(path, _trajectory(stamps, poses, T_base_cam))
+    return {"smoothed_no_loops": str(path)}

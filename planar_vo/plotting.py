@@ -12,7 +12,8 @@ _STYLES = {"raw": dict(color="tab:orange", lw=1.2, ls="--"), "smoothed": dict(co
            "wheel odometry": dict(color="tab:green", lw=1.2, ls=":")}
 
 
-def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, title: str | None = None) -> None:
+def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, title: str | None = None,
+                      closures=None) -> None:
     """Plot camera positions seen from above (x forward, y left of the first frame).
 
     ``trajectories``: name -> Trajectory (``T_odom_cam``), drawn in order and labelled by
@@ -20,6 +21,7 @@ def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, t
     one's start is marked. ``ground_truth``: Trajectory in
     its own world frame; it is brought into ``odom`` by aligning its pose at the first
     estimated stamp with the first estimated pose, so the plot shows drift as it grew.
+    ``closures``: optional (M, 2, 3) endpoints of loop closures in ``odom``, drawn as lines.
     """
     import matplotlib
 
@@ -37,6 +39,9 @@ def plot_trajectories(path: str | Path, trajectories: dict, ground_truth=None, t
     for name, traj in trajectories.items():
         P = traj.positions
         ax.plot(P[:, 0], P[:, 1], label=name, **_STYLES.get(name, {}))
+    for k, (a, b) in enumerate(np.asarray(closures if closures is not None else []).reshape(-1, 2, 3)):
+        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="#e7298a", lw=0.8, alpha=0.7,
+                label="loop closures" if k == 0 else None)
     if len(first):
         ax.plot(*first.positions[0, :2], "go", ms=6, label="start")
     ax.set_aspect("equal", adjustable="datalim")

@@ -40,6 +40,8 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
         ov["backend"] = {"wheel_odom": False}
     if getattr(args, "online", False):
         ov["solver"] = "online"
+    if getattr(args, "no_loops", False):
+        ov["loops"] = {"enabled": False}
     if getattr(args, "no_plot", False):
         ov["output"]["plot"] = False
     if getattr(args, "poses_format", None) is not None:
@@ -52,6 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="run folder to write (created if missing)")
     p.add_argument("--config", help="YAML configuration file (see config.yaml of any run)")
     p.add_argument("--online", action="store_true", help="iSAM2 per frame instead of batch LM")
+    p.add_argument("--no-loops", action="store_true", help="no loop closure (keyframes, place recognition)")
     p.add_argument("--gt", help="ground truth (TUM) to draw in trajectory.png")
     p.add_argument("--no-plot", action="store_true", help="skip trajectory.png")
     p.add_argument("--poses-format", choices=("auto", "ros2", "foxglove"),
@@ -91,6 +94,10 @@ def print_summary(result) -> None:
           f"2-point {f['estimated_2pt']}, partial {f.get('partial', 0)}, bridged {f['bridged']}, "
           f"failed {f['failed']})")
     print(f"speed: {r['fps']} frames/s end to end")
+    lc = r.get("loop_closure") or {}
+    if lc.get("keyframes") is not None:
+        print(f"loop closure: {lc['keyframes']} keyframes, {lc['candidates']} candidates, {lc['accepted']} closures "
+              f"kept ({lc['rejected']} rejected by verification, {lc['removed_by_graph']} removed by the graph)")
     wo = r.get("wheel_odometry") or {}
     if wo.get("used"):
         print(f"wheel odometry: {wo['topic']} ({wo['source']}), a factor on {wo['steps_with_factor']} steps, "
