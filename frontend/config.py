@@ -226,7 +226,8 @@ class PlaceConfig:
     keyframes indexed so far. Verification: descriptor matches passing the ``ratio`` test
     and mutual, then a planar 2-point RANSAC on the levelled 3-D points under the depth
     noise model ``depth_sigma_const + depth_sigma_quad * Z^2`` (m) and ``pixel_sigma``
-    (px), chi-square ``chi2`` (3 dof: the height of a point is kept by a planar motion).
+    (px), chi-square ``chi2`` (3 dof: the height of a point is kept by a planar motion;
+    ``height_sigma_m`` more on each point's height for levelling errors).
     Accepted only with ``min_inliers`` inliers, ``min_inlier_ratio`` of the matches with
     depth, and a spread of at least ``min_spread_m`` (std of the inliers' horizontal
     positions along their weaker principal axis). With a Manhattan frame in both
@@ -254,6 +255,7 @@ class PlaceConfig:
     depth_sigma_const: float = 0.002
     depth_sigma_quad: float = 0.002
     pixel_sigma: float = 1.0
+    height_sigma_m: float = 0.01
     manhattan_gate_sigmas: float = 4.0
     manhattan_gate_deg: float = 1.0
     manhattan_min_score: float = 0.05
@@ -265,7 +267,7 @@ class PlaceConfig:
                   hash_tables=self.hash_tables, ratio=self.ratio, max_hamming=self.max_hamming,
                   min_inliers=self.min_inliers, min_spread_m=self.min_spread_m,
                   ransac_iterations=self.ransac_iterations, chi2=self.chi2,
-                  depth_sigma_const=self.depth_sigma_const, pixel_sigma=self.pixel_sigma,
+                  depth_sigma_const=self.depth_sigma_const, pixel_sigma=self.pixel_sigma, height_sigma_m=self.height_sigma_m,
                   manhattan_gate_sigmas=self.manhattan_gate_sigmas, manhattan_gate_deg=self.manhattan_gate_deg,
                   min_sigma_xy=self.min_sigma_xy, min_sigma_theta_deg=self.min_sigma_theta_deg)
         if not 8 <= self.hash_bits <= 24:

@@ -260,16 +260,18 @@ class ClosureCheck:
 
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np.ndarray:
     """Matches (M, 2) int64 ``[i1, i2]``: nearest neighbours in Hamming distance within
-    ``max_hamming``, better than ``ratio`` times the second nearest, and mutual."""
+    ``max_hamming`` and better than ``ratio`` times the second nearest; a point of ``d2``
+    claimed by several keeps the closest (one brute-force pass; the reverse pass of a
+    mutual check doubled the cost and gained nothing after the geometric tests)."""
     if len(d1) < 2 or len(d2) < 2:
         return np.zeros((0, 2), np.int64)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    fwd = bf.knnMatch(d1, d2, k=2)
-    back = {m.queryIdx: m.trainIdx for m in bf.match(d2, d1)}
-    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in fwd
-             if len(m) == 2 and m[0].distance <= config.max_hamming and m[0].distance < config.ratio * m[1].distance
-             and back.get(m[0].trainIdx) == m[0].queryIdx]
-    return np.array(pairs, np.int64).reshape(-1, 2)
+    fwd = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(d1, d2, k=2)
+    m = np.array([(p[0].queryIdx, p[0].trainIdx, p[0].distance, p[1].distance) for p in fwd if len(p) == 2],
+                 float).reshape(-1, 4)
+    m = m[(m[:, 2] <= config.max_hamming) & (m[:, 2] < config.ratio * m[:, 3])]
+    m = m[np.lexsort((m[:, 2], m[:, 1]))]
+    first = np.concatenate([[True], m[1:, 1] != m[:-1, 1]]) if len(m) else np.zeros(0, bool)
+    return m[first, :2].astype(np.int64)
 
 
 def _point_cov(P: np.ndarray, config: PlaceConfig, focal: float) -> tuple[np.ndarray, ...]:
@@ -419,21 +421,25 @@ def _manhattan_yaw(a: Keyframe, b: Keyframe, yaw_pts: float, var_pts: float, con
     return first
 
 
-def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
-    """Matches with depth in both keyframes whose heights agree (a planar motion keeps
-    them): ``(matches (M, 2), P1, P2, cov1, cov2, d2_y)`` and the number of descriptor matches."""
-    m = match_descriptors(a.desc, b.desc, config)
-    n_matches = len(m)
-    P1, P2 = a.P_lev[m[:, 0]], b.P_lev[m[:, 1]]
+def _valid(P: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
-    m, P1, P2 = m[ok], P1[ok], P2[ok]
+        return np.flatnonzero(np.isfinite(P).all(1) & (P[:, 2] > 0))
+
+
+def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
+    """Descriptor matches between points with depth whose levelled heights agree (a planar
+    motion keeps them, so most wrong matches fail here before any model):
+    ``(P1, P2, cov1, cov2, d2_y)`` of the M matches kept, ``cov`` the horizontal covariance
+    entries (:func:`_point_cov`), ``d2_y`` (M,) their vertical Mahalanobis distances, and
+    the number of descriptor matches."""
+    fa, fb = _valid(a.P_lev), _valid(b.P_lev)
+    m = match_descriptors(a.desc[fa], b.desc[fb], config)
+    P1, P2 = a.P_lev[fa][m[:, 0]], b.P_lev[fb][m[:, 1]]
     c1, c2 = _point_cov(P1, config, a.focal_px), _point_cov(P2, config, b.focal_px)
-    d2_y = (P2[:, 1] - P1[:, 1]) ** 2 / (c1[3] + c2[3])
+    d2_y = (P2[:, 1] - P1[:, 1]) ** 2 / (c1[3] + c2[3] + 2 * config.height_sigma_m ** 2)
     keep = d2_y < config.chi2
-    cov1 = tuple(x[keep] for x in c1[:3])
-    cov2 = tuple(x[keep] for x in c2[:3])
-    return m[keep], P1[keep], P2[keep], cov1, cov2, d2_y[keep], n_matches
+    return (P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]), d2_y[keep],
+            len(m))
 
 
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
@@ -444,8 +450,8 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     ``T_base_cam``: (4, 4) the camera mount (its planar part converts the levelled-camera
     motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC.
     """
-    m, P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
-    if len(m) < config.min_matches:
+    P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
+    if len(P1) < config.min_matches:
         return ClosureCheck(False, FEW_MATCHES, None, None, matches=n_matches)
     Q1, Q2 = P1[:, [0, 2]], P2[:, [0, 2]]
     hyp = _ransac(Q1, Q2, cov1, cov2, d2_y, config, np.random.default_rng(seed))
@@ -455,7 +461,7 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     n_in = int(inl.sum())
     spread = _spread(Q2[inl])
     out = dict(matches=n_matches, inliers=n_in, spread_m=spread)
-    if n_in < config.min_inliers or n_in < config.min_inlier_ratio * len(m):
+    if n_in < config.min_inliers or n_in < config.min_inlier_ratio * len(P1):
         return ClosureCheck(False, FEW_INLIERS, None, None, **out)
     if spread < config.min_spread_m:
         return ClosureCheck(False, POOR_SPREAD, None, None, **out)
