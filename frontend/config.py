@@ -209,3 +209,73 @@ class FrontendConfig:
         _positive("frontend", min_depth=self.min_depth)
         if self.max_depth <= self.min_depth:
             raise ConfigError("config key 'frontend.max_depth' must exceed 'frontend.min_depth'")
+
+
+@dataclass
+class PlaceConfig:
+    """Loop-closure front-end (:mod:`planar_vo.frontend.places`): keyframe contents, place
+    recognition and geometric verification. Not part of :class:`FrontendConfig`: the run's
+    configuration carries it as its own ``places`` section.
+
+    Keyframes: ``orb_features`` ORB keypoints, kept evenly over a ``grid_cols`` x
+    ``grid_rows`` grid of the image (ORB's own ranking piles them onto the few
+    high-contrast decals, which are exactly the repeated posters and doors).
+    Place recognition: a bag of words without a trained vocabulary: ``hash_tables``
+    random subsets of ``hash_bits`` descriptor bits (locality-sensitive hashing for the
+    Hamming distance, seeded by ``hash_seed``) are the words, weighted by tf-idf over the
+    keyframes indexed so far. Verification: descriptor matches passing the ``ratio`` test
+    and mutual, then a planar 2-point RANSAC on the levelled 3-D points under the depth
+    noise model ``depth_sigma_const + depth_sigma_quad * Z^2`` (m) and ``pixel_sigma``
+    (px), chi-square ``chi2`` (3 dof: the height of a point is kept by a planar motion;
+    ``height_sigma_m`` more on each point's height for levelling errors).
+    Accepted only with ``min_inliers`` inliers, ``min_inlier_ratio`` of the matches with
+    depth, and a spread of at least ``min_spread_m`` (std of the inliers' horizontal
+    positions along their weaker principal axis). With a Manhattan frame in both
+    keyframes the yaw comes from the two observations (paper eq. 1) unless they disagree
+    with the points' yaw beyond ``manhattan_gate_sigmas`` and ``manhattan_gate_deg``
+    (rejected: ``manhattan_mismatch``). ``min_sigma_xy`` / ``min_sigma_theta_deg``: floors
+    on the closure's stated sigmas (what the residuals cannot see: calibration, levelling).
+    """
+
+    orb_features: int = 1000
+    orb_fast_threshold: int = 12
+    grid_cols: int = 8
+    grid_rows: int = 6
+    hash_tables: int = 8
+    hash_bits: int = 16
+    hash_seed: int = 0
+    ratio: float = 0.9
+    max_hamming: int = 64
+    min_matches: int = 20
+    min_inliers: int = 25
+    min_inlier_ratio: float = 0.25
+    min_spread_m: float = 0.25
+    ransac_iterations: int = 512
+    chi2: float = 11.34
+    depth_sigma_const: float = 0.002
+    depth_sigma_quad: float = 0.002
+    pixel_sigma: float = 1.0
+    height_sigma_m: float = 0.01
+    manhattan_gate_sigmas: float = 4.0
+    manhattan_gate_deg: float = 1.0
+    manhattan_min_score: float = 0.05
+    min_sigma_xy: float = 0.005
+    min_sigma_theta_deg: float = 0.05
+
+    def __post_init__(self) -> None:
+        _positive("places", orb_features=self.orb_features, grid_cols=self.grid_cols, grid_rows=self.grid_rows,
+                  hash_tables=self.hash_tables, ratio=self.ratio, max_hamming=self.max_hamming,
+                  min_inliers=self.min_inliers, min_spread_m=self.min_spread_m,
+                  ransac_iterations=self.ransac_iterations, chi2=self.chi2,
+                  depth_sigma_const=self.depth_sigma_const, pixel_sigma=self.pixel_sigma, height_sigma_m=self.height_sigma_m,
+                  manhattan_gate_sigmas=self.manhattan_gate_sigmas, manhattan_gate_deg=self.manhattan_gate_deg,
+                  min_sigma_xy=self.min_sigma_xy, min_sigma_theta_deg=self.min_sigma_theta_deg)
+        if not 8 <= self.hash_bits <= 24:
+            raise ConfigError(f"config key 'places.hash_bits' must be within [8, 24], got {self.hash_bits!r}")
+        if not self.ratio <= 1.0 or not 0.0 <= self.min_inlier_ratio <= 1.0:
+            raise ConfigError("config keys 'places.ratio' and 'places.min_inlier_ratio' must be within (0, 1]")
+        if self.min_matches < 2 or self.min_inliers < 3:
+            raise ConfigError("config keys 'places.min_matches' >= 2 and 'places.min_inliers' >= 3 "
+                              f"required, got {self.min_matches!r} and {self.min_inliers!r}")
+        if self.depth_sigma_quad < 0 or self.manhattan_min_score < 0:
+            raise ConfigError("config keys 'places.depth_sigma_quad' and 'places.manhattan_min_score' must be >= 0")

@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, batch, wheel, loops."""
+"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, batch, wheel, places, loops."""
 from __future__ import annotations
 
 import argparse
@@ -15,6 +15,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "sweep": ("planar_vo.bench.sweep", "accuracy over randomized scenes: drift and yaw distributions per layout"),
     "batch": ("planar_vo.bench.batch", "planar-vo batch with 1 and 2 workers against planar-vo run one log after another"),
     "wheel": ("planar_vo.bench.wheel", "wheel odometry fusion over randomized scenes: with and without it"),
+    "places": ("planar_vo.bench.places", "place recognition and loop-closure verification on a rendered corridor ring"),
     "loops": ("planar_vo.bench.loops", "loop closure on building rings: drift, revisits closed, closure errors, cost"),
 }
 

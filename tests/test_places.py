@@ -1,0 +1,149 @@
+"""Loop closure, front-end half (frontend/places.py): keyframes rendered at known poses,
+verification against the ground-truth relative pose, false pairs rejected, the place index
+ranking the revisited keyframe first. Seeds 31-32 (the defaults were tuned on 11-12)."""
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from planar_vo.core import geometry
+from planar_vo.frontend.config import PlaceConfig
+from planar_vo.frontend.odometry import PlanarOdometry
+from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, verify_closure
+
+synth = pytest.importorskip("planar_vo.sim.synth")
+from planar_vo.sim.synth_scene import build_scene  # noqa: E402
+
+W, H = 960, 540
+CONFIG = PlaceConfig()
+
+
+class Shooter:
+    """Renders keyframes of one straight corridor at given base poses."""
+
+    def __init__(self, seed: int, **scene_kw):
+        cfg = synth.SynthConfig(layout="straight", seed=seed, n_frames=400).at_resolution(W, H)
+        self.scene = build_scene("straight", 16.0, seed, **scene_kw)
+        self.renderer = synth.SynthRenderer(cfg, scene=self.scene)
+        self.K, self.mount = synth.synth_intrinsics(cfg), synth.synth_mount(cfg)
+        self.n = 0
+
+    def keyframe(self, pose) -> Keyframe:
+        f = self.renderer.render(np.asarray(pose, float), index=self.n)
+        self.n += 1
+        odo = PlanarOdometry(self.K, self.mount)
+        res = odo.process(f.rgbd)
+        gray = cv2.cvtColor(f.rgbd.color, cv2.COLOR_BGR2GRAY)
+        kf = make_keyframe(self.n, 0.0, gray, f.rgbd.depth, self.K, odo.levelling.R_lev_cam, res.manhattan, CONFIG)
+        kf.gt = np.asarray(pose, float)  # test bookkeeping only
+        return kf
+
+
+@pytest.fixture(scope="module")
+def corridor():
+    """A first pass through the corridor: a keyframe every metre (kept for all tests)."""
+    shooter = Shooter(31)
+    shooter.first = {x: shooter.keyframe((float(x), 0.1 * math.sin(x), 0.0)) for x in range(1, 11)}
+    return shooter
+
+
+def _error(check, a, b):
+    gt = geometry.se2_between(a.gt, b.gt)
+    e = check.pose - gt
+    e[2] = float(geometry.wrap_angle(e[2]))
+    return e
+
+
+REVISITS = {  # first-pass keyframe -> second-pass pose: lateral offsets, heading changes, 1 m along
+    3: (3.0, -0.25, math.radians(15)),
+    5: (5.0, 0.30, math.radians(-20)),
+    8: (8.0, 0.40, math.radians(8)),
+    9: (10.0, 0.15, math.radians(6)),
+}
+
+
+def test_true_pairs_within_5cm_and_half_a_degree(corridor):
+    pairs = [(corridor.first[x], corridor.keyframe(p)) for x, p in REVISITS.items()]
+    pairs.append((corridor.first[4], corridor.first[5]))
+    normalised = []
+    for a, b in pairs:
+        c = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG)
+        assert c.accepted, (a.gt, b.gt, c.reason, c.matches, c.inliers, c.spread_m)
+        assert c.pose.shape == (3,) and c.information.shape == (3, 3)
+        e = _error(c, a, b)
+        assert math.hypot(e[0], e[1]) < 0.05 and abs(math.degrees(e[2])) < 0.5, (a.gt, b.gt, e)
+        normalised.append(np.linalg.cholesky(c.information).T @ e)
+    # the stated information is neither absurdly optimistic nor uselessly loose
+    rms = np.sqrt((np.array(normalised) ** 2).mean(0))
+    assert (rms < 3.0).all() and (rms > 0.02).all(), rms
+
+
+def test_sign_convention_against_ground_truth(corridor):
+    """b ahead of a and turned left: T_base_a_base_b has x > 0, y > 0 and theta > 0."""
+    a = corridor.first[6]
+    b = corridor.keyframe((6.6, a.gt[1] + 0.1, math.radians(10)))
+    c = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG)
+    assert c.accepted
+    assert c.pose[0] == pytest.approx(0.6, abs=0.05) and c.pose[1] == pytest.approx(0.1, abs=0.05)
+    assert math.degrees(c.pose[2]) == pytest.approx(10.0, abs=0.5)
+    back = verify_closure(b, a, corridor.mount.T_base_cam, CONFIG)
+    assert back.accepted
+    np.testing.assert_allclose(geometry.se2_compose(c.pose, back.pose), 0.0, atol=0.02)
+
+
+def test_unrelated_places_are_rejected(corridor):
+    f = corridor.first
+    for a, b in ((f[1], f[8]), (f[3], f[10]), (f[2], f[6]),
+                 (f[2], corridor.keyframe((2 + 5.12, f[2].gt[1], 0.0)))):  # the wall texture's period: walls alike
+        c = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG)
+        assert not c.accepted and c.pose is None, (a.gt, b.gt, c)
+
+
+def test_repeated_doors_and_posters_are_rejected():
+    """One poster design and one door design all along the corridor: places look alike."""
+    shooter = Shooter(32, n_posters=1, n_doors=1)
+    rng = np.random.default_rng(32)
+    verdicts = []
+    for _ in range(4):
+        x = rng.uniform(1.5, 5.0)
+        pa, pb = (x, rng.uniform(-0.2, 0.2), 0.0), (x + rng.uniform(2.0, 7.0), rng.uniform(-0.2, 0.2), 0.0)
+        c = verify_closure(shooter.keyframe(pa), shooter.keyframe(pb), shooter.mount.T_base_cam, CONFIG)
+        verdicts.append(c.reason)
+    assert "accepted" not in verdicts, verdicts
+
+
+def test_place_index_ranks_the_revisited_keyframe_first(corridor):
+    index = PlaceIndex(CONFIG)
+    kfs = [corridor.first[x] for x in range(1, 11)]
+    for kf in kfs:
+        index.add(kf)
+    assert len(index) == len(kfs)
+    for x_true, pose in ((3, (3.1, -0.25, math.radians(12))), (7, (7.0, 0.3, math.radians(-15)))):
+        q = corridor.keyframe(pose)
+        ranked = index.query(q, max_index=10 ** 6, k=3)
+        assert kfs[ranked[0][0]].gt[0] == pytest.approx(x_true), ranked
+        assert ranked[0][1] > 1.5 * ranked[1][1]
+        # the caller excludes recent keyframes by index
+        limited = index.query(q, max_index=kfs[x_true - 2].index, k=3)
+        assert limited and all(kfs[p].index <= kfs[x_true - 2].index for p, _ in limited)
+
+
+def test_keyframe_holds_no_image(corridor):
+    kf = corridor.first[4]
+    n = len(kf.desc)
+    assert 100 < n <= CONFIG.orb_features
+    assert kf.desc.shape == (n, 32) and kf.desc.dtype == np.uint8
+    assert kf.px.shape == (n, 2) and kf.xy_lev.shape == (n, 2) and kf.P_lev.shape == (n, 3)
+    assert np.isfinite(kf.P_lev).all(1).mean() > 0.9   # keypoints are chosen where depth reads
+    for v in vars(kf).values():
+        assert not (isinstance(v, np.ndarray) and v.ndim >= 2 and v.shape[:2] == (H, W))
+    assert kf.nbytes < 150_000  # ~110 bytes a keypoint; the grey image alone is 518 kB
+
+
+def test_config_is_validated():
+    from planar_vo.core.errors import ConfigError
+    with pytest.raises(ConfigError, match="places.hash_bits"):
+        PlaceConfig(hash_bits=40)
+    with pytest.raises(ConfigError, match="places.min_spread_m"):
+        PlaceConfig(min_spread_m=0.0)
