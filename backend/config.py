@@ -116,6 +116,25 @@ class BackendConfig:
     #: Cauchy kernel keeps a residual pull ~ k^2 / u per wrong factor. 0 disables.
     prune_sigmas: float = 10.0
 
+    # --- loop closures (add_closure: a BetweenFactorPose2 T_base_i_base_j from place recognition)
+    #: Kernel and parameter (whitened units) of an accepted closure. Robust so that a closure
+    #: a little off (a few sigma: an optimistic verification covariance, a slightly wrong
+    #: match) pulls with bounded force. Closures are first solved Gaussian, then with this
+    #: kernel: at the drifted initial guess a true closure's residual is the accumulated drift,
+    #: tens of its sigma, where a redescending kernel would ignore it (see graph.py).
+    closure_robust_kernel: KernelName = "cauchy"
+    closure_robust_parameter: float = 3.0
+    #: After each solve the active closure with the largest Mahalanobis residual beyond this
+    #: many sigma is removed and the graph re-solved, worst first, until none is left
+    #: (RTAB-Map's RGBD/OptimizeMaxError): a false closure bends the graph and raises the
+    #: residuals of true ones too, so removing them all at once would take true ones with it.
+    #: 0 keeps every closure.
+    closure_max_error_sigmas: float = 5.0
+    #: iSAM2: relinearisation passes after closures entered (or left) the graph, stopping early
+    #: once no variable moves beyond the relinearisation thresholds. A loop closure moves the
+    #: whole loop, further than one Gauss-Newton step on its linearisation point reaches.
+    closure_isam2_max_passes: int = 10
+
     # --- batch Levenberg-Marquardt
     lm_max_iterations: int = 100
     lm_relative_error_tol: float = 1e-10
@@ -138,18 +157,18 @@ class BackendConfig:
                     "same_frame_deg",
                     "isam2_relinearize_xy", "isam2_relinearize_theta_deg",
                     "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg", "wheel_odom_max_disagreement",
-                    "wheel_odom_check_m", "wheel_odom_distrust")
+                    "wheel_odom_check_m", "wheel_odom_distrust", "closure_robust_parameter")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
-                     "manhattan_instance_size",
+                     "manhattan_instance_size", "closure_max_error_sigmas",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"config key 'backend.{name}' must be >= 0, got {getattr(self, name)!r}")
         for name in ("new_frame_min_observations", "new_frame_window", "lm_max_iterations",
-                     "isam2_relinearize_skip"):
+                     "isam2_relinearize_skip", "closure_isam2_max_passes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"config key 'backend.{name}' must be >= 1, got {getattr(self, name)!r}")
         if self.same_frame_deg >= 22.5:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -44,6 +45,52 @@ def _check_information(information, what: str) -> np.ndarray:
     return a
 
 
+#: keys of a closure's dict that its ``info`` may not override
+_CLOSURE_KEYS = ("id", "i", "j", "pose", "sigma", "status", "residual_sigmas", "reason")
+
+
+@dataclass
+class _Closure:
+    """One loop closure: ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information``.
+
+    ``index``: its factor's index in the batch graph or in iSAM2 (None before it reached
+    iSAM2); ``robust``: whether that factor carries the closure kernel (else Gaussian).
+    """
+
+    id: int
+    i: int
+    j: int
+    pose: np.ndarray
+    information: np.ndarray
+    info: dict = field(default_factory=dict)
+    status: str = "active"
+    residual: float | None = None
+    reason: str | None = None
+    index: int | None = None
+    robust: bool = False
+
+
+def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
+    """(3, 3) covariance of ``T_i^-1 T_j`` from the (6, 6) joint covariance of the two
+    poses (``gtsam.Pose2`` each, right-perturbed tangent ``[x, y, theta]``, i first).
+
+    With ``T_i Exp(a)`` and ``T_j Exp(b)``: ``T_ij' = Exp(-a) T_ij Exp(b)
+    = T_ij Exp(b - Ad(T_ij^-1) a)`` to first order, so ``J = [-Ad(T_ij^-1), I]``.
+    """
+    t_ij = pose_i.between(pose_j)
+    jac = np.hstack([-t_ij.inverse().AdjointMap(), np.eye(3)])
+    cov = jac @ joint @ jac.T
+    return 0.5 * (cov + cov.T)
+
+
+def _check_pair(i: int, j: int, n: int, what: str, where: str) -> None:
+    for name, v in (("i", i), ("j", j)):
+        if not (0 <= int(v) < n):
+            raise ValueError(f"{what}: {name}={v} is not a frame {where} (0..{n - 1})")
+    if int(i) == int(j):
+        raise ValueError(f"{what}: i and j must differ, got {i}")
+
+
 def _is_manhattan_link(f) -> bool:
     """True for a pose-to-Manhattan-frame rotation factor (not anchors or ties)."""
     keys = f.keys()
@@ -63,6 +110,7 @@ class _GraphBuilder:
         self.assoc_counts: Counter = Counter()
         # (kind, factor) of every robust factor, to report down-weighting after a solve
         self.robust: list[tuple[str, object]] = []
+        self.closures: list[_Closure] = []  # every closure ever added, in order
         # Manhattan frame j -> its current variable instance (key M(i)), links on it, last pose
         self.inst_of_frame: list[int] = []
         self._inst_links: list[int] = []
@@ -210,14 +258,63 @@ class _GraphBuilder:
             return values.atPose2(M(inst)).theta()
         return values.atRot2(M(inst)).theta()
 
-    def check_relative(self, i: int, j: int, pose, information):
-        for name, v in (("i", i), ("j", j)):
-            if not (0 <= int(v) < self.n):
-                raise ValueError(f"add_relative: {name}={v} is not a frame of the graph (0..{self.n - 1})")
-        if i == j:
-            raise ValueError(f"add_relative: i and j must differ, got {i}")
-        return (_check_pose(pose, "add_relative pose"),
-                self.step_information(_check_information(information, "add_relative information"), ""))
+    def check_relative(self, i: int, j: int, pose, information, what: str = "add_relative"):
+        _check_pair(i, j, self.n, what, "of the graph")
+        return (_check_pose(pose, f"{what} pose"),
+                self.step_information(_check_information(information, f"{what} information"), ""))
+
+    # ------------------------------------------------------------------ loop closures
+    def new_closure(self, i: int, j: int, pose, information, info: dict | None) -> _Closure:
+        """Validate and record a closure (its information gets the step sigma floors)."""
+        p, inf = self.check_relative(i, j, pose, information, "add_closure")
+        info = dict(info or {})
+        clash = sorted(set(info) & set(_CLOSURE_KEYS))
+        if clash:
+            raise ValueError(f"add_closure: info may not use the reserved key(s) {clash}; rename them")
+        c = _Closure(len(self.closures), int(i), int(j), p, inf, info)
+        self.closures.append(c)
+        return c
+
+    def closure_factor(self, c: _Closure, robust: bool):
+        """``BetweenFactorPose2(X(i), X(j))``, Gaussian or with the closure kernel."""
+        noise = step_noise(c.information)
+        if robust:
+            noise = robust_noise(noise, self.cfg.closure_robust_kernel, self.cfg.closure_robust_parameter)
+        return gtsam.BetweenFactorPose2(X(c.i), X(c.j), gtsam.Pose2(*c.pose), noise)
+
+    def judge_closures(self, values: gtsam.Values) -> _Closure | None:
+        """Set every closure's Mahalanobis residual at ``values``; return the active closure
+        with the largest one if it exceeds ``closure_max_error_sigmas`` (else None)."""
+        worst = None
+        for c in self.closures:
+            between = values.atPose2(X(c.i)).between(values.atPose2(X(c.j)))
+            # the BetweenFactor's error: Logmap(measured^-1 * T_i^-1 T_j), tangent [x, y, theta]
+            e = gtsam.Pose2.Logmap(gtsam.Pose2(*c.pose).between(between))
+            c.residual = float(math.sqrt(max(float(e @ c.information @ e), 0.0)))
+            if c.status == "active" and (worst is None or c.residual > worst.residual):
+                worst = c
+        limit = self.cfg.closure_max_error_sigmas
+        return worst if worst is not None and limit > 0 and worst.residual > limit else None
+
+    def remove_closure(self, c: _Closure) -> None:
+        n = sum(1 for o in self.closures if o.status == "active")
+        c.status = "removed"
+        c.reason = (f"residual {c.residual:.1f} sigma > closure_max_error_sigmas "
+                    f"{self.cfg.closure_max_error_sigmas:g} after the solve (worst of {n} active closures)")
+
+    def active_closures(self) -> list[_Closure]:
+        return [c for c in self.closures if c.status == "active"]
+
+    def closure_dicts(self) -> list[dict]:
+        """One dict per closure, in order (see :meth:`PlanarPoseGraph.closures`)."""
+        out = []
+        for c in self.closures:
+            d = {"id": c.id, "i": c.i, "j": c.j, "pose": [float(v) for v in c.pose],
+                 "sigma": [float(v) for v in np.sqrt(np.diag(np.linalg.inv(c.information)))],
+                 "status": c.status, "residual_sigmas": c.residual, "reason": c.reason}
+            d.update(c.info)
+            out.append(d)
+        return out
 
     def poses_from(self, values: gtsam.Values) -> np.ndarray:
         """(N, 3) poses ``X(0..N-1)`` from ``values``."""
@@ -262,6 +359,8 @@ class _GraphBuilder:
             "ignored": int(a["ignored"]),
             "pending": self.assoc.n_pending,
             "drift_associations": self.assoc.drift_associations,
+            "closures": {"added": len(self.closures), "active": len(self.active_closures()),
+                         "removed": sum(1 for c in self.closures if c.status == "removed")},
         }
 
 
@@ -287,6 +386,8 @@ class PlanarPoseGraph:
         self._prunable: list[int] = []    # indices of Manhattan links and extra relative factors
         self._pruned: Counter = Counter()
         self._link_of: dict = {}          # factor index -> ManhattanLink
+        self._solved: tuple | None = None  # (graph, values) of the last optimize(), for marginals
+        self._joint = None                 # gtsam.Marginals on _solved, built on first use
 
     def __len__(self) -> int:
         return self._b.n
@@ -314,28 +415,91 @@ class PlanarPoseGraph:
         self._graph.add(self._b.relative_factor(i, j, p, info, "relative"))
         self._result = None
 
-    def optimize(self) -> np.ndarray:
-        """Batch Levenberg-Marquardt over the whole graph; (N, 3) float64 ``T_odom_base``."""
-        if self._b.n == 0:
-            return np.zeros((0, 3))
+    def add_closure(self, i: int, j: int, pose, information, *, info: dict | None = None) -> int:
+        """Loop closure ``T_base_i_base_j = pose`` (3,) ``(x, y, theta)`` with (3, 3)
+        ``information`` (Pose2 tangent order ``[x, y, theta]``; the step sigma floors apply).
+
+        Solved robustly and removed by :meth:`optimize` if its residual stays beyond
+        ``closure_max_error_sigmas``. ``info`` (e.g. the verification's inliers) is kept and
+        returned by :meth:`closures`. Returns the closure id (0, 1, ... in order added).
+        """
+        c = self._b.new_closure(i, j, pose, information, info)
+        c.index = self._graph.size()
+        self._graph.add(self._b.closure_factor(c, robust=True))
+        c.robust = True
+        self._result = None
+        return c.id
+
+    def closures(self) -> list[dict]:
+        """One dict per closure ever added, in order: ``id, i, j, pose [x, y, theta],
+        sigma [sx, sy, stheta]`` (of the information used), ``status`` ('active' | 'removed'),
+        ``residual_sigmas`` (Mahalanobis distance of its residual at the last solution, None
+        before any), ``reason`` (None, or why it was removed), then the caller's ``info``."""
+        return self._b.closure_dicts()
+
+    def _lm(self, values: gtsam.Values) -> tuple[gtsam.Values, int, float]:
         cfg = self.config
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(cfg.lm_max_iterations)
         params.setRelativeErrorTol(cfg.lm_relative_error_tol)
         params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
+        opt = gtsam.LevenbergMarquardtOptimizer(self._graph, values, params)
+        result = opt.optimize()
+        return result, int(opt.iterations()), float(opt.error())
+
+    def optimize(self) -> np.ndarray:
+        """Batch Levenberg-Marquardt over the whole graph; (N, 3) float64 ``T_odom_base``.
+
+        With closures: first the graph without them (Manhattan pruning included), then the
+        closures are judged against that solution (:meth:`_solve_closures`)."""
+        if self._b.n == 0:
+            return np.zeros((0, 3))
         t0 = time.perf_counter()
+        closures = self._b.active_closures()
+        for c in closures:
+            self._graph.remove(c.index)
         error_initial = float(self._graph.error(self._initial))
-        opt = gtsam.LevenbergMarquardtOptimizer(self._graph, self._initial, params)
-        self._result = opt.optimize()
-        iterations = int(opt.iterations())
-        if cfg.prune_sigmas > 0 and self._prune(self._result):
-            opt = gtsam.LevenbergMarquardtOptimizer(self._graph, self._result, params)
-            self._result = opt.optimize()
-            iterations += int(opt.iterations())
+        self._result, iterations, error = self._lm(self._initial)
+        if self.config.prune_sigmas > 0 and self._prune(self._result):
+            self._result, its, error = self._lm(self._result)
+            iterations += its
+        if closures:
+            its, error = self._solve_closures(self._result)
+            iterations += its
         self._solve = {"iterations": iterations, "time_s": time.perf_counter() - t0,
-                       "error_initial": error_initial, "error_final": float(opt.error()),
+                       "error_initial": error_initial, "error_final": error,
                        "pruned": dict(self._pruned)}
+        self._solved, self._joint = (self._graph.clone(), self._result, self._b.n), None
         return self._b.poses_from(self._result)
+
+    def _solve_closures(self, start: gtsam.Values) -> tuple[int, float]:
+        """Add the active closures to the solution ``start`` (the graph without them) and
+        remove the worst one beyond ``closure_max_error_sigmas`` until none is left.
+
+        Each round solves from ``start`` twice: closures Gaussian (a pose graph from its
+        odometry is well-behaved, and at ``start`` a true closure's residual is the drift,
+        tens of sigma, where a redescending kernel would ignore it), then with the closure
+        kernel from there. Starting every round again from ``start`` means a removed false
+        closure leaves no trace (robust steps or Manhattan links it had pushed into the
+        kernel's tail are not stuck there). Returns ``(iterations, final error)``.
+        """
+        iterations = 0
+        while True:
+            active = self._b.active_closures()
+            if not active:
+                self._result = start
+                return iterations, float(self._graph.error(start))
+            for robust in (False, True):
+                for c in active:
+                    self._graph.replace(c.index, self._b.closure_factor(c, robust))
+                    c.robust = robust
+                self._result, its, error = self._lm(start if not robust else self._result)
+                iterations += its
+            worst = self._b.judge_closures(self._result)
+            if worst is None:
+                return iterations, error
+            self._b.remove_closure(worst)
+            self._graph.remove(worst.index)
 
     def _prune(self, values: gtsam.Values) -> int:
         """Remove prunable factors beyond ``prune_sigmas`` at ``values``; a removed Manhattan
@@ -399,6 +563,20 @@ class PlanarPoseGraph:
         marg = gtsam.Marginals(self._graph, values)
         return np.stack([marg.marginalCovariance(X(k)) for k in range(self._b.n)])
 
+    def relative_covariance(self, i: int, j: int) -> np.ndarray:
+        """(3, 3) float64 covariance of ``T_base_i_base_j`` (tangent ``[x, y, theta]`` at
+        ``T_base_i_base_j``) at the last :meth:`optimize`, from the joint marginal of
+        ``X(i), X(j)``; raises RuntimeError before any :meth:`optimize`."""
+        if self._solved is None:
+            raise RuntimeError("relative_covariance: the batch graph has no solution yet; call optimize() first")
+        graph, values, n = self._solved
+        _check_pair(i, j, n, "relative_covariance", "of the last solution")
+        if self._joint is None:
+            self._joint = gtsam.Marginals(graph, values)
+        jm = self._joint.jointMarginalCovariance([X(i), X(j)])
+        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+        return _relative_covariance(joint, values.atPose2(X(i)), values.atPose2(X(j)))
+
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local Manhattan frame; ``yaw_world`` (rad)
         is the frame's heading in odom modulo 90 deg, in [-pi/4, pi/4), at the optimum if
@@ -448,6 +626,7 @@ class IncrementalPlanarPoseGraph:
         self._b = _GraphBuilder(cfg, associator)
         self._b.instance_estimate = self._instance_estimate
         self._pending = gtsam.NonlinearFactorGraph()
+        self._new_closures: list[_Closure] = []  # added, not yet handed to iSAM2
         self._time = 0.0
         self._updates = 0
 
@@ -469,10 +648,8 @@ class IncrementalPlanarPoseGraph:
             p = self._isam.calculateEstimatePose2(X(k - 1))
             prev = np.array([p.x(), p.y(), p.theta()])
         graph, values, k = self._b.frame(result, prev, odometry)
-        if self._pending.size():
-            graph.push_back(self._pending)
-            self._pending = gtsam.NonlinearFactorGraph()
-        self._isam.update(graph, values)
+        if self._push(graph, values):
+            self._settle_closures()
         self._time += time.perf_counter() - t0
         self._updates += 1
         return k
@@ -482,14 +659,82 @@ class IncrementalPlanarPoseGraph:
         p, info = self._b.check_relative(i, j, pose, information)
         self._pending.add(self._b.relative_factor(i, j, p, info, "relative"))
 
+    def add_closure(self, i: int, j: int, pose, information, *, info: dict | None = None) -> int:
+        """Loop closure, as :meth:`PlanarPoseGraph.add_closure`; returns its id.
+
+        Queued: it reaches iSAM2 with the next :meth:`add_frame`, :meth:`update` or
+        :meth:`estimate`, is judged there (worst first beyond ``closure_max_error_sigmas``,
+        removed from iSAM2 if so) and its status in :meth:`closures` is then final for now.
+        """
+        c = self._b.new_closure(i, j, pose, information, info)
+        self._new_closures.append(c)
+        return c.id
+
+    def closures(self) -> list[dict]:
+        """As :meth:`PlanarPoseGraph.closures`; residuals at the last closure check (None for
+        closures still queued)."""
+        return self._b.closure_dicts()
+
+    def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *,
+              force: bool = False) -> bool:
+        """One iSAM2 update with ``graph``, ``values``, the queued relative factors and the
+        queued closures (Gaussian: see :meth:`_settle_closures`); returns True if closures went in."""
+        if self._pending.size():
+            graph.push_back(self._pending)
+            self._pending = gtsam.NonlinearFactorGraph()
+        new, self._new_closures = self._new_closures, []
+        first = graph.size()
+        for c in new:
+            graph.add(self._b.closure_factor(c, robust=False))
+        res = self._isam.update(graph, values, force_relinearize=force)
+        if new:
+            idx = list(res.getNewFactorsIndices())
+            for n, c in enumerate(new):
+                c.index = int(idx[first + n])
+        return bool(new)
+
+    def _passes(self) -> None:
+        """Relinearisation passes until no variable moves beyond the thresholds (at most
+        ``closure_isam2_max_passes``)."""
+        for _ in range(self.config.closure_isam2_max_passes):
+            res = self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), force_relinearize=True)
+            self._updates += 1
+            if res.getVariablesRelinearized() == 0:
+                break
+
+    def _settle_closures(self) -> None:
+        """Converge, make the Gaussian closures robust, converge, and remove the worst active
+        closure beyond ``closure_max_error_sigmas`` until none is left (as the batch graph:
+        closures enter Gaussian because at the drifted estimate a true closure's residual is
+        tens of sigma, where the redescending kernel would hardly pull)."""
+        while True:
+            self._passes()
+            gauss = [c for c in self._b.active_closures() if not c.robust]
+            if gauss:
+                g = gtsam.NonlinearFactorGraph()
+                for c in gauss:
+                    g.add(self._b.closure_factor(c, robust=True))
+                res = self._isam.update(g, gtsam.Values(), [c.index for c in gauss])
+                for c, idx in zip(gauss, res.getNewFactorsIndices()):
+                    c.index, c.robust = int(idx), True
+                self._passes()
+            worst = self._b.judge_closures(self._isam.calculateBestEstimate())
+            if worst is None:
+                return
+            self._b.remove_closure(worst)
+            self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [worst.index])
+
     def update(self, iterations: int = 1) -> None:
         """Flush queued factors, then run ``iterations`` relinearisation passes that ignore
         ``isam2_relinearize_skip`` (variables still move only if their delta exceeds the
-        thresholds); no new information is added."""
+        thresholds); no new information is added. Queued closures are judged after the
+        first pass, and all active ones re-checked after the last."""
         t0 = time.perf_counter()
+        closed = False
         for _ in range(iterations):
-            self._isam.update(self._pending, gtsam.Values(), force_relinearize=True)
-            self._pending = gtsam.NonlinearFactorGraph()
+            closed |= self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
+        if closed or self._b.active_closures():
+            self._settle_closures()
         self._time += time.perf_counter() - t0
         self._updates += iterations
 
@@ -502,7 +747,7 @@ class IncrementalPlanarPoseGraph:
         """
         if self._b.n == 0:
             return np.zeros((0, 3))
-        if flush or self._pending.size():
+        if flush or self._pending.size() or self._new_closures:
             self.update()
         return self._b.poses_from(self._isam.calculateBestEstimate())
 
@@ -517,9 +762,20 @@ class IncrementalPlanarPoseGraph:
 
     def marginal_covariances(self) -> np.ndarray:
         """(N, 3, 3) float64 iSAM2 marginal covariances (Pose2 tangent space, body frame)."""
-        if self._pending.size():
+        if self._pending.size() or self._new_closures:
             self.update()
         return np.stack([self._isam.marginalCovariance(X(k)) for k in range(self._b.n)])
+
+    def relative_covariance(self, i: int, j: int) -> np.ndarray:
+        """(3, 3) float64 covariance of ``T_base_i_base_j`` at the current estimate, from
+        iSAM2's joint marginal of ``X(i), X(j)`` (queued factors are flushed first)."""
+        _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
+        if self._pending.size() or self._new_closures:
+            self.update()
+        jm = self._isam.jointMarginalCovariance([X(i), X(j)])
+        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+        return _relative_covariance(joint, self._isam.calculateEstimatePose2(X(i)),
+                                    self._isam.calculateEstimatePose2(X(j)))
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local frame at the current estimate."""

@@ -86,6 +86,49 @@ def _true_path(n: int, rng: np.random.Generator, frame_yaws: np.ndarray, step_le
     return poses, seen
 
 
+def _frame_results(truth, seen, frame_yaws, rng, crng, step_sigma_xy, step_sigma_theta_deg, yaw_bias_deg,
+                   obs_sigma_deg, obs_dropout, bridged_fraction, corrupt_fraction):
+    """Noisy front-end frames from the (N, 3) ``truth`` and the (N, 2) frames each pose sees
+    (see :func:`simulate_manhattan_sequence`); returns ``(results, corrupted)``."""
+    n_frames = len(truth)
+    sxy, sth = step_sigma_xy, math.radians(step_sigma_theta_deg)
+    info = np.diag([1 / sxy**2, 1 / sxy**2, 1 / sth**2])
+    bridged_info = np.diag([1 / 0.5**2, 1 / 0.5**2, 1 / math.radians(30.0) ** 2])
+    bias = math.radians(yaw_bias_deg)
+    osig = math.radians(obs_sigma_deg)
+
+    results: list[FrameResult] = []
+    corrupted: list[tuple[int, int]] = []
+    prev_step = np.zeros(3)
+    for k in range(n_frames):
+        step = None
+        if k > 0:
+            true = se2_between(truth[k - 1], truth[k])
+            noisy = true + np.array([rng.normal(0, sxy), rng.normal(0, sxy), rng.normal(0, sth) + bias])
+            bridged = rng.random() < bridged_fraction
+            if bridged:  # the front-end lost it: constant-velocity guess
+                step = Step(prev_step.copy(), bridged_info.copy(), STATUS_BRIDGED, 0)
+            else:
+                step = Step(noisy, info.copy(), STATUS_DPP, 50)
+                prev_step = noisy
+        obs = []
+        dropped = rng.random() < obs_dropout
+        for i, j in enumerate(seen[k]):
+            if j < 0:
+                continue
+            yaw = float(wrap_quarter(frame_yaws[j] - truth[k, 2] + rng.normal(0, osig)))
+            if not dropped:
+                obs.append(ManhattanObservation(yaw=yaw, sigma=osig, score=0.5 / (i + 1), track_id=int(j)))
+        for i, o in enumerate(obs):
+            if crng.random() < corrupt_fraction:
+                e = math.radians(crng.uniform(3.0, 45.0)) * (1 if crng.random() < 0.5 else -1)
+                o.yaw = float(wrap_quarter(o.yaw + e))
+                o.track_id = -1
+                corrupted.append((k, i))
+        results.append(FrameResult(index=k, stamp=0.1 * k, step=step, manhattan=obs))
+    return results, corrupted
+
+
 def simulate_manhattan_sequence(
     n_frames: int = 1000,
     *,
@@ -117,43 +160,67 @@ def simulate_manhattan_sequence(
     frame_yaws = np.radians(np.asarray(frame_yaws_deg, dtype=float))
     truth, seen = _true_path(n_frames, rng, frame_yaws, step_length, segment_length, switch_probability,
                              math.radians(turn_rate_deg), math.radians(wiggle_deg))
-    sxy, sth = step_sigma_xy, math.radians(step_sigma_theta_deg)
-    info = np.diag([1 / sxy**2, 1 / sxy**2, 1 / sth**2])
-    bridged_info = np.diag([1 / 0.5**2, 1 / 0.5**2, 1 / math.radians(30.0) ** 2])
-    bias = math.radians(yaw_bias_deg)
-    osig = math.radians(obs_sigma_deg)
     crng = np.random.default_rng([seed, 1])
-
-    results: list[FrameResult] = []
-    corrupted: list[tuple[int, int]] = []
-    prev_step = np.zeros(3)
-    for k in range(n_frames):
-        step = None
-        if k > 0:
-            true = se2_between(truth[k - 1], truth[k])
-            noisy = true + np.array([rng.normal(0, sxy), rng.normal(0, sxy), rng.normal(0, sth) + bias])
-            bridged = rng.random() < bridged_fraction
-            if bridged:  # the front-end lost it: constant-velocity guess
-                step = Step(prev_step.copy(), bridged_info.copy(), STATUS_BRIDGED, 0)
-            else:
-                step = Step(noisy, info.copy(), STATUS_DPP, 50)
-                prev_step = noisy
-        obs = []
-        dropped = rng.random() < obs_dropout
-        for i, j in enumerate(seen[k]):
-            if j < 0:
-                continue
-            yaw = float(wrap_quarter(frame_yaws[j] - truth[k, 2] + rng.normal(0, osig)))
-            if not dropped:
-                obs.append(ManhattanObservation(yaw=yaw, sigma=osig, score=0.5 / (i + 1), track_id=int(j)))
-        for i, o in enumerate(obs):
-            if crng.random() < corrupt_fraction:
-                e = math.radians(crng.uniform(3.0, 45.0)) * (1 if crng.random() < 0.5 else -1)
-                o.yaw = float(wrap_quarter(o.yaw + e))
-                o.track_id = -1
-                corrupted.append((k, i))
-        results.append(FrameResult(index=k, stamp=0.1 * k, step=step, manhattan=obs))
+    results, corrupted = _frame_results(truth, seen, frame_yaws, rng, crng, step_sigma_xy, step_sigma_theta_deg,
+                                        yaw_bias_deg, obs_sigma_deg, obs_dropout, bridged_fraction,
+                                        corrupt_fraction)
     return SyntheticSequence(truth, results, frame_yaws, seen[:, 0].copy(), corrupted)
+
+
+def _ring_path(size: tuple[float, float], laps: float, step_length: float, turn_rate: float):
+    """(N, 3) poses round a ``size`` (m) rectangle, counter-clockwise from its corner at the
+    origin heading +x, turning in place-ish (forward creep) at each corner, for ``laps`` laps."""
+    poses = [np.zeros(3)]
+    side, theta, turned = 0, 0.0, 0.0
+    total = laps * 2 * (size[0] + size[1])
+    travelled, s = 0.0, 0.0
+    while travelled < total:
+        x, y, th = poses[-1]
+        if s < size[side % 2]:  # straight along the side
+            d = min(step_length, size[side % 2] - s)
+            s += d
+            th_new = theta
+        else:                   # corner: rotate towards the next side, creeping forward
+            dth = min(turn_rate, 0.5 * math.pi - turned)
+            turned += dth
+            d = 0.0
+            th_new = th + dth
+            if turned >= 0.5 * math.pi - 1e-12:
+                side, s, turned = side + 1, 0.0, 0.0
+                theta = (side % 4) * 0.5 * math.pi
+                th_new = theta
+        travelled += d
+        poses.append(np.array([x + d * math.cos(th), y + d * math.sin(th), float(wrap_angle(th_new))]))
+    return np.array(poses)
+
+
+def simulate_ring_sequence(*, seed: int = 0, size: tuple[float, float] = (12.0, 6.0), laps: float = 1.5,
+                           step_length: float = 0.1, turn_rate_deg: float = 10.0, step_sigma_xy: float = 0.005,
+                           step_sigma_theta_deg: float = 0.1, yaw_bias_deg: float = 0.02, obs_sigma_deg: float = 0.5,
+                           obs_dropout: float = 0.1, manhattan: bool = True) -> SyntheticSequence:
+    """A closed loop with drift: ``laps`` laps round a ``size`` (m) rectangle (one Manhattan
+    frame at 0 deg, seen every frame unless ``manhattan`` is False), steps and observations
+    with the noise of :func:`simulate_manhattan_sequence`. Revisits after the first lap are
+    the places loop closures link (:func:`ring_closures`)."""
+    rng = np.random.default_rng(seed)
+    truth = _ring_path(size, laps, step_length, math.radians(turn_rate_deg))
+    seen = np.full((len(truth), 2), -1 if not manhattan else 0, dtype=int)
+    seen[:, 1] = -1
+    results, _ = _frame_results(truth, seen, np.zeros(1), rng, np.random.default_rng([seed, 1]), step_sigma_xy,
+                                step_sigma_theta_deg, yaw_bias_deg, obs_sigma_deg, obs_dropout, 0.0, 0.0)
+    return SyntheticSequence(truth, results, np.zeros(1), seen[:, 0].copy())
+
+
+def ring_closures(truth: np.ndarray, *, every: int = 10, radius: float = 0.5, min_gap: int = 100) -> list[tuple[int, int]]:
+    """``(i, j)`` frame pairs, ``i < j - min_gap``, with ``i`` the frame nearest to ``j`` in
+    position within ``radius`` (m), for every ``every``-th frame ``j``: the places a loop
+    closure detector should link on a (N, 3) ``truth``."""
+    out = []
+    for j in range(min_gap + 1, len(truth), every):
+        d = np.linalg.norm(truth[: j - min_gap, :2] - truth[j, :2], axis=1)
+        if d.size and d.min() <= radius:
+            out.append((int(np.argmin(d)), j))
+    return out
 
 
 def trajectory_errors(est: np.ndarray, truth: np.ndarray) -> dict[str, float]:
