@@ -161,6 +161,8 @@ class Scene:
     ``manhattan_headings``: world heading (rad) of each local Manhattan frame, by id.
     ``path``: the robot's nominal path (corridor centre line with rounded corners).
     ``lamps``: (K, 2) ceiling lamp positions (x, y) for the light map.
+    ``look_alike``: ``aliased`` only: ``(x0, x1, shift)``, the stretch ``x0 <= x <= x1`` of
+    corridor A (on ``y = 0``) that reappears, identical, moved by ``shift`` (2,) (corridor B).
     """
 
     layout: str
@@ -170,6 +172,7 @@ class Scene:
     lamps: np.ndarray
     ceiling_height: float
     bounds: tuple[float, float, float, float]
+    look_alike: tuple | None = None
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``vertices`` (4S, 3) float32, ``triangles`` (2S, 3) uint32, ``tri_surface`` (2S,) int32."""
@@ -610,16 +613,19 @@ def _build_aliased(rng, L, r, w, h, clearance, n_posters, n_doors, n_box_designs
     B.surfaces.extend(_translated(B.surfaces[n0:], shift))
     B.boxes.extend([(c + shift, rad) for c, rad in B.boxes])
     B.walls.extend([(q0 + shift, q1 + shift, k, t) for q0, q1, k, t in module])
-    rest = _aliased_other_walls(B, np.array([[-3.0, 0.0], [X1, 0.0], [X1, D], [xb + La + 3.0, D]]), w, La, xb, D)
+    # B ends in a wall as far past its look-alike stretch as the connector's far wall is past A's,
+    # so that the view down the corridor ends alike too
+    C = np.array([[-3.0, 0.0], [X1, 0.0], [X1, D], [xb + La + g + w / 2, D]])
+    rest = _aliased_other_walls(B, C, w, La, xb, D)
     B.decorate_walls(n_posters, n_doors, door_proud=door_proud, poster_proud=poster_proud, walls=rest)
     B.boxes_along_walls(box_density, path_pts, clearance, n_box_designs, walls=rest)
     bounds = _tiled_floor_and_ceiling(B, (0.0, -w / 2, La, w / 2), shift)
     lamps_a = np.column_stack([np.arange(1.2, La, 2.4), np.zeros(len(np.arange(1.2, La, 2.4)))])
-    others = _polyline_samples(np.array([[-3.0, 0.0], [X1, 0.0], [X1, D], [xb + La + 3.0, D]]), 2.4, False)
+    others = _polyline_samples(C, 2.4, False)
     far = np.array([not ((abs(p[1]) < 1e-6 and -1.2 < p[0] < La + 1.2)
                          or (abs(p[1] - D) < 1e-6 and xb - 1.2 < p[0] < xb + La + 1.2)) for p in others])
     lamps = np.vstack([lamps_a, lamps_a + shift, others[far]])
-    return Scene("aliased", B.surfaces, [0.0], path, lamps, h, bounds)
+    return Scene("aliased", B.surfaces, [0.0], path, lamps, h, bounds, (0.0, La, shift))
 
 
 def _aliased_other_walls(B: _Builder, C: np.ndarray, w: float, La: float, xb: float, D: float) -> list:
