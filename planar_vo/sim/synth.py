@@ -340,15 +340,16 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     s = s * (total / S)  # exact arc length (closes the loop to rounding)
     c, head, kappa = scene.path.evaluate(s)
     # sideways weave d(s); a whole number of periods over the drive so that a whole number of
-    # laps closes (after 1.5 laps the robot passes its start off the first lap's line)
+    # laps closes, but not per lap when there is more than one: a revisit then passes off the
+    # first lap's line (a different lateral offset and heading, as a real robot would)
     rng = np.random.default_rng([int(cfg.seed), 2029])
-    n_per = max(1, int(round(total / cfg.weave_wavelength)))
+    n_per = _periods(total / cfg.weave_wavelength, cfg.laps_used)
     k = 2.0 * np.pi * n_per / total
     phase = rng.uniform(0.0, 2.0 * np.pi)
     d = cfg.weave * np.sin(k * s + phase)
     dd = cfg.weave * k * np.cos(k * s + phase)
     for amp, wavelength in cfg.weave_components:
-        n_per = max(1, int(round(total / wavelength)))
+        n_per = _periods(total / wavelength, cfg.laps_used)
         kk = 2.0 * np.pi * n_per / total
         ph = rng.uniform(0.0, 2.0 * np.pi)
         d = d + amp * np.sin(kk * s + ph)
@@ -358,6 +359,15 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     # heading of p(s) = c(s) + d(s) n(s): p' = t (1 - kappa d) + d' n
     theta = wrap_angle(head + np.arctan2(dd, 1.0 - kappa * d))
     return np.column_stack([xy, theta])
+
+
+def _periods(n: float, laps: float) -> int:
+    """Whole weave periods nearest ``n`` over a drive of ``laps`` laps (at least 1), one more if
+    beyond one lap they would repeat lap after lap."""
+    n_per = max(1, int(round(n)))
+    if laps > 1.0 and abs(n_per / laps - round(n_per / laps)) < 1e-9:
+        n_per += 1
+    return n_per
 
 
 def _twists_at(cfg: SynthConfig, scene: Scene, t: np.ndarray, h: float = 1e-3) -> np.ndarray:
