@@ -11,7 +11,10 @@ from planar_vo.core.errors import ConfigError, InputError
 from planar_vo.core.geometry import mount_rotation, se2_to_matrix, tilt_from_gravity, wrap_quarter
 from planar_vo.sim.synth import (SynthConfig, SynthRenderer, render_sequence, synth_intrinsics, synth_mount,
                                 synth_trajectory, write_synth_log)
-from planar_vo.sim.synth_scene import LABEL_CEILING, LABEL_FLOOR, LABEL_OTHER, LABEL_WALL, LAYOUTS
+from planar_vo.sim.synth_scene import LABEL_CEILING, LABEL_FLOOR, LABEL_OTHER, LABEL_WALL
+
+#: the corridor layouts of the drive tests (building and aliased: tests/test_synth_ring.py)
+LAYOUTS = ("straight", "lturn", "loop", "two_frames", "hall")
 
 
 def small(width=240, height=135, **kw) -> SynthConfig:

@@ -11,14 +11,25 @@ import os
 import time
 
 LAYOUT_HELP = ("straight: one corridor; lturn: a 90 deg left turn; loop: a rectangular corridor ring "
-               "driven once around, back to the start; two_frames: a corridor meeting another at 60 deg "
-               "(two local Manhattan frames); hall: an open hall, no wall within depth range for long stretches")
+               "driven once around (--laps), back to the start; two_frames: a corridor meeting another at 60 deg "
+               "(two local Manhattan frames); hall: an open hall, no wall within depth range for long stretches; "
+               "building: a ring of corridors round a notched block, a 40 m lap (--lap-m) driven 1.5 times "
+               "(--laps), doors and posters of few designs that repeat (loop closure); aliased: two corridors "
+               "that look the same at different places, driven one after the other (wrong loop closures)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", help="output log path (.mcap); ground truth goes to <out>.gt.tum")
     parser.add_argument("--layout", default="lturn", help=LAYOUT_HELP + " (default: lturn)")
-    parser.add_argument("--frames", type=int, default=300, help="number of frames at --rate Hz (default: 300)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="number of frames at --rate Hz (default: 300; building: enough for --laps laps of "
+                             "--lap-m metres)")
+    parser.add_argument("--laps", type=float, default=None,
+                        help="loop and building: laps driven; the ring is sized so that the frames drive this "
+                             "many (default: 1 for loop, 1.5 for building)")
+    parser.add_argument("--lap-m", type=float, default=None,
+                        help="building without --frames: the lap length in m the frames are chosen for "
+                             "(default: 40)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of scene, texture and noise (default: 0)")
     parser.add_argument("--profile", default="ros2", help="ros2 (iai_kinect2-like CDR) or foxglove (protobuf)")
     parser.add_argument("--container", default="mcap",
@@ -62,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 #: SynthConfig field -> command-line flag, to name the flag in error messages.
-_FLAGS = {"layout": "--layout", "n_frames": "--frames", "texture": "--texture", "pitch_deg": "--pitch-deg",
+_FLAGS = {"layout": "--layout", "n_frames": "--frames", "laps": "--laps", "texture": "--texture", "pitch_deg": "--pitch-deg",
           "roll_deg": "--roll-deg", "cam_height": "--height", "speed": "--speed", "rate_hz": "--rate",
           "width": "--size", "height": "--size", "fx": "--size", "fy": "--size"}
 
@@ -76,6 +87,23 @@ def _parse_size(text: str) -> tuple[int, int]:
     if w < 8 or h < 8 or w > 8192 or h > 8192:
         raise InputError(f"--size {text!r}: width and height must be between 8 and 8192 pixels")
     return w, h
+
+
+def _frames(args: argparse.Namespace) -> int:
+    """``--frames``, or its default: 300, or for ``building`` the frames of ``--laps`` laps of ``--lap-m``."""
+    from planar_vo.core.errors import InputError
+    from planar_vo.sim.synth import frames_for_laps
+    from planar_vo.sim.synth_scene import BUILDING_LAP_M
+
+    if args.lap_m is not None and (args.layout != "building" or args.frames is not None or not args.lap_m > 0):
+        raise InputError(f"--lap-m {args.lap_m}: sizes the building layout when --frames is not given; "
+                         "give a positive length with --layout building and no --frames")
+    if args.frames is not None:
+        return args.frames
+    if args.layout != "building" or not (args.speed > 0 and args.rate > 0):
+        return 300  # (SynthConfig names a bad --speed or --rate)
+    laps = args.laps if args.laps is not None and args.laps > 0 else 1.5  # SynthConfig rejects a bad --laps
+    return frames_for_laps(laps, args.lap_m or BUILDING_LAP_M, args.speed, args.rate)
 
 
 def _wheel_odom_model(args: argparse.Namespace, seed: int):
@@ -99,6 +127,7 @@ def main(args: argparse.Namespace) -> int:
     from planar_vo.io.codecs import COLOR_ENCODINGS, DEPTH_ENCODINGS
     from planar_vo.io.mcap_writer import PROFILES
     from planar_vo.sim.synth import SENSOR_PRESETS, SynthConfig, with_sensor, write_synth_log
+    from planar_vo.sim.synth_scene import CLOSED_LAYOUTS
 
     if args.profile not in PROFILES:
         raise InputError(f"--profile {args.profile!r}: use one of {', '.join(PROFILES)}")
@@ -113,12 +142,13 @@ def main(args: argparse.Namespace) -> int:
         if args.randomize:
             from planar_vo.sim.synth_random import describe, randomized_config
 
-            cfg = randomized_config(args.seed, args.layout, n_frames=args.frames)
+            cfg = randomized_config(args.seed, args.layout, n_frames=args.frames or 300)
             print("randomized: " + ", ".join(f"{k}={v}" for k, v in describe(cfg).items()))
         else:
-            cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=args.frames, rate_hz=args.rate,
+            cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=_frames(args), rate_hz=args.rate,
                               speed=args.speed, texture=args.texture, pitch_deg=args.pitch_deg,
-                              roll_deg=args.roll_deg, cam_height=args.height, depth_noise=not args.no_depth_noise)
+                              roll_deg=args.roll_deg, cam_height=args.height, depth_noise=not args.no_depth_noise,
+                              laps=args.laps)
             cfg = with_sensor(cfg, args.sensor)
         if (width, height) != (cfg.width, cfg.height):
             cfg = cfg.at_resolution(width, height)
@@ -139,6 +169,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"log: {paths['log']}  ({cfg.n_frames} frames {cfg.width}x{cfg.height}, {size_mb:.1f} MB, "
           f"{cfg.path_length:.1f} m, {cfg.n_frames / dt:.1f} frames/s)")
     print(f"ground truth: {paths['ground_truth']}")
+    if cfg.layout in CLOSED_LAYOUTS:
+        print(f"{cfg.layout}: {cfg.laps_used:g} laps of {cfg.path_length / cfg.laps_used:.1f} m")
     if odom is not None:
         where = "/tf (odom -> base_link)" if args.wheel_odom_on == "tf" else "/odom"
         print(f"wheel odometry: {where}, scale {odom.scale:+g}, wheelbase {odom.wheelbase:+g}, "

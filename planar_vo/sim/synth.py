@@ -41,7 +41,7 @@ import numpy as np
 
 from planar_vo.core.errors import ConfigError, InputError
 from planar_vo.core.geometry import mount_rotation, se2_to_matrix, wrap_angle, wrap_quarter
-from planar_vo.sim.synth_scene import (LABEL_FLOOR, LABEL_WALL, LAYOUTS, MAT_BOX, MAT_CEILING, MAT_CONCRETE,
+from planar_vo.sim.synth_scene import (BUILDING_LAP_M, CLOSED_LAYOUTS, LABEL_FLOOR, LABEL_WALL, LAYOUTS, MAT_BOX, MAT_CEILING, MAT_CONCRETE,
                                       MAT_DOOR, MAT_FLOOR, MAT_POSTER, MAT_WALL, Scene, build_scene,
                                       min_path_length)
 from planar_vo.sim.synth_texture import (FLAT_COLORS, TEX_ATLAS, TEX_CEILING, TEX_CONCRETE, TEX_FLOOR, TEX_WALL,
@@ -64,7 +64,7 @@ def open3d():
 
 __all__ = ["SynthConfig", "SynthFrame", "SynthRenderer", "render_sequence", "synth_trajectory", "with_sensor",
            "SENSOR_PRESETS",
-           "synth_intrinsics", "synth_mount", "write_synth_log", "LAYOUTS", "TEXTURE_LEVELS"]
+           "synth_intrinsics", "synth_mount", "write_synth_log", "frames_for_laps", "LAYOUTS", "TEXTURE_LEVELS"]
 
 _MAT_TEX = {MAT_FLOOR: TEX_FLOOR, MAT_WALL: TEX_WALL, MAT_CEILING: TEX_CEILING, MAT_CONCRETE: TEX_CONCRETE,
             MAT_POSTER: TEX_ATLAS, MAT_DOOR: TEX_ATLAS, MAT_BOX: TEX_ATLAS}
@@ -82,6 +82,9 @@ class SynthConfig:
     sideways weave of amplitude ``weave`` metres. Mount: base_link on the floor, the
     optical centre ``cam_x`` forward and ``cam_height`` up, tilted by ``pitch_deg``
     (down) and ``roll_deg`` (REP 103, :func:`planar_vo.core.geometry.mount_rotation`).
+    Closed layouts (``loop``, ``building``) are sized so that the path drives ``laps`` laps
+    (None: 1 for ``loop``, 1.5 for ``building``); :func:`frames_for_laps` gives the frames of
+    a lap length.
     """
 
     layout: str = "lturn"
@@ -111,6 +114,8 @@ class SynthConfig:
     #: with a seeded phase: short wavelengths turn the heading fast (a real robot's wobble)
     weave_components: tuple = ()
     start_stamp: float = 1_700_000_000.0
+    #: laps of a closed layout (loop, building) the path drives; None: the layout's default
+    laps: float | None = None
     # scene
     corridor_width: float = 2.0
     ceiling_height: float = 2.6
@@ -186,14 +191,17 @@ class SynthConfig:
         for name in ("exposure_ms", "readout_ms", "color_delay_ms", "flicker"):
             if not (getattr(self, name) >= 0 and math.isfinite(getattr(self, name))):
                 bad(name, "must be a finite number >= 0")
-        if self.exposure_ms + self.readout_ms + 2 * self.color_delay_ms > 1000.0 / self.rate_hz:
+        # 1e-9 ms of slack: a draw that fills the period exactly (synth_random) must not fail on rounding
+        if self.exposure_ms + self.readout_ms + 2 * self.color_delay_ms > 1000.0 / self.rate_hz + 1e-9:
             bad("exposure_ms", "exposure + readout + 2 x colour delay must fit in one frame period "
                 f"({1000.0 / self.rate_hz:.0f} ms)")
         if not 0.0 <= self.flying_pixels <= 1.0:
             bad("flying_pixels", "must be a fraction in [0, 1]")
         if not 1.0 <= self.ae_target <= 254.0:
             bad("ae_target", "must be a grey level in [1, 254]")
-        need = min_path_length(self.layout, self.turn_radius_used, self.corridor_width)
+        if self.laps is not None and (self.layout not in CLOSED_LAYOUTS or not 0.1 <= self.laps <= 100.0):
+            bad("laps", f"applies to the closed layouts {', '.join(CLOSED_LAYOUTS)} only, within [0.1, 100]")
+        need = min_path_length(self.layout, self.turn_radius_used, self.corridor_width, self.laps_used)
         if self.path_length < need:
             frames = int(math.ceil((need / self.speed + self.ramp_s) * self.rate_hz)) + 2
             raise ConfigError(f"SynthConfig.n_frames: layout {self.layout!r} needs at least {need:.1f} m of path "
@@ -204,6 +212,13 @@ class SynthConfig:
     def turn_radius_used(self) -> float:
         """Corner radius of the path: ``turn_radius``, widened so ``speed / radius <= max_yaw_rate``."""
         return max(self.turn_radius, self.speed / self.max_yaw_rate)
+
+    @property
+    def laps_used(self) -> float:
+        """Laps the path drives round a closed layout (1 for the open layouts: one pass)."""
+        if self.laps is not None:
+            return float(self.laps)
+        return 1.5 if self.layout == "building" else 1.0
 
     @property
     def duration(self) -> float:
@@ -284,8 +299,20 @@ def synth_mount(cfg: SynthConfig) -> Mount:
     return Mount(T, parent_frame="base_link", child_frame="kinect2_rgb_optical_frame")
 
 
+def frames_for_laps(laps: float = 1.5, lap_m: float = BUILDING_LAP_M, speed: float = 0.4, rate_hz: float = 10.0,
+                    ramp_s: float = 1.0) -> int:
+    """Fewest frames whose path (SynthConfig's trapezoidal speed profile) is ``laps * lap_m`` metres
+    or more, so that a closed layout's lap comes out at least ``lap_m`` long."""
+    length = laps * lap_m
+    n = max(2, int(math.ceil((length / speed + ramp_s) * rate_hz)) - 1)
+    while speed * ((n - 1) / rate_hz - min(ramp_s, (n - 1) / rate_hz / 2.0)) < length:
+        n += 1
+    return n
+
+
 def _scene_for(cfg: SynthConfig) -> Scene:
-    return build_scene(cfg.layout, cfg.path_length, cfg.seed, corridor_width=cfg.corridor_width,
+    # a closed layout is built for one lap; the path drives laps_used of them
+    return build_scene(cfg.layout, cfg.path_length / cfg.laps_used, cfg.seed, corridor_width=cfg.corridor_width,
                        ceiling_height=cfg.ceiling_height, turn_radius=cfg.turn_radius_used,
                        n_posters=N_POSTERS, n_doors=N_DOORS, n_box_designs=N_BOXES,
                        door_proud=cfg.door_proud_m, poster_proud=cfg.poster_proud_m,
@@ -309,18 +336,21 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     else:
         s = v * t
     S = cfg.path_length
-    s = s * (scene.path.length / S)  # exact arc length (closes the loop to rounding)
+    total = scene.path.length * cfg.laps_used  # laps of a closed path (evaluate takes s modulo a lap)
+    s = s * (total / S)  # exact arc length (closes the loop to rounding)
     c, head, kappa = scene.path.evaluate(s)
-    # sideways weave d(s); a whole number of periods on a closed path so the loop closes
+    # sideways weave d(s); a whole number of periods over the drive so that a whole number of
+    # laps closes, but not per lap when there is more than one: a revisit then passes off the
+    # first lap's line (a different lateral offset and heading, as a real robot would)
     rng = np.random.default_rng([int(cfg.seed), 2029])
-    n_per = max(1, int(round(scene.path.length / cfg.weave_wavelength)))
-    k = 2.0 * np.pi * n_per / scene.path.length
+    n_per = _periods(total / cfg.weave_wavelength, cfg.laps_used)
+    k = 2.0 * np.pi * n_per / total
     phase = rng.uniform(0.0, 2.0 * np.pi)
     d = cfg.weave * np.sin(k * s + phase)
     dd = cfg.weave * k * np.cos(k * s + phase)
     for amp, wavelength in cfg.weave_components:
-        n_per = max(1, int(round(scene.path.length / wavelength)))
-        kk = 2.0 * np.pi * n_per / scene.path.length
+        n_per = _periods(total / wavelength, cfg.laps_used)
+        kk = 2.0 * np.pi * n_per / total
         ph = rng.uniform(0.0, 2.0 * np.pi)
         d = d + amp * np.sin(kk * s + ph)
         dd = dd + amp * kk * np.cos(kk * s + ph)
@@ -329,6 +359,15 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     # heading of p(s) = c(s) + d(s) n(s): p' = t (1 - kappa d) + d' n
     theta = wrap_angle(head + np.arctan2(dd, 1.0 - kappa * d))
     return np.column_stack([xy, theta])
+
+
+def _periods(n: float, laps: float) -> int:
+    """Whole weave periods nearest ``n`` over a drive of ``laps`` laps (at least 1), one more if
+    beyond one lap they would repeat lap after lap."""
+    n_per = max(1, int(round(n)))
+    if laps > 1.0 and abs(n_per / laps - round(n_per / laps)) < 1e-9:
+        n_per += 1
+    return n_per
 
 
 def _twists_at(cfg: SynthConfig, scene: Scene, t: np.ndarray, h: float = 1e-3) -> np.ndarray:

@@ -6,7 +6,8 @@ out of the walls, the angle between two corridors), the path (speed, frame rate 
 wobble of several superposed weaves, heading rates up to ~10 deg/s), the mount (height,
 pitch, roll), the texture and lighting, and the sensor (depth noise growing with incidence,
 holes at depth edges, Kinect v2 timing effects). ``planar-vo synth --randomize`` and
-``planar-vo bench sweep`` use it; tune on one range of seeds, report on another.
+``planar-vo bench sweep`` use it; tune on one range of seeds, report on another. It also
+draws the ``building`` and ``aliased`` layouts (loop closure), which the sweep does not run.
 
 The ranges are :data:`RANGES`; every draw is recorded in the returned config (and so in
 the log's metadata and the sweep's report), so a failing seed can be understood.
@@ -17,6 +18,7 @@ import math
 import numpy as np
 
 from planar_vo.sim.synth import SynthConfig, min_path_length
+from planar_vo.sim.synth_scene import BUILDING_LAP_M
 
 #: Drawn uniformly within these (inclusive) unless stated otherwise.
 RANGES = {
@@ -110,7 +112,11 @@ def _frames_needed(fields: dict, n_frames: int) -> int:
     (SynthConfig's own default corner radius, ramp and yaw-rate limit)."""
     base = SynthConfig.__dataclass_fields__
     radius = max(base["turn_radius"].default, fields["speed"] / base["max_yaw_rate"].default)
-    need = max(min_path_length(fields["layout"], radius, fields["corridor_width"]) + 0.5, MIN_PATH_M)
+    # the building ring keeps its default lap (tens of metres), driven its default laps
+    laps = 1.5 if fields["layout"] == "building" else 1.0
+    lap = BUILDING_LAP_M if fields["layout"] == "building" else 0.0
+    need = max(min_path_length(fields["layout"], radius, fields["corridor_width"], laps) + 0.5, MIN_PATH_M,
+               laps * lap)
     n = n_frames
     while True:
         duration = (n - 1) / fields["rate_hz"]

@@ -20,7 +20,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 LABEL_NONE, LABEL_FLOOR, LABEL_WALL, LABEL_CEILING, LABEL_OTHER = range(5)
-LAYOUTS = ("straight", "lturn", "loop", "two_frames", "hall")
+LAYOUTS = ("straight", "lturn", "loop", "two_frames", "hall", "building", "aliased")
+#: Layouts whose path is a closed ring, driven ``laps`` times (``path_length`` of
+#: :func:`build_scene` is then one lap).
+CLOSED_LAYOUTS = ("loop", "building")
+#: ``building``: the lap (m) a log is sized for by default (:func:`planar_vo.sim.synth.frames_for_laps`).
+BUILDING_LAP_M = 40.0
+#: ``building``: poster and door designs used, few so that they repeat along the ring.
+BUILDING_POSTER_DESIGNS, BUILDING_DOOR_DESIGNS = 5, 2
+#: ``aliased``: shortest stretch (m) of the two look-alike corridors.
+ALIASED_MIN_MODULE_M = 3.0
 MAT_FLOOR, MAT_WALL, MAT_CEILING, MAT_CONCRETE, MAT_POSTER, MAT_DOOR, MAT_BOX = range(7)
 MATERIAL_NAMES = ("floor", "wall", "ceiling", "concrete", "poster", "door", "box")
 
@@ -152,6 +161,8 @@ class Scene:
     ``manhattan_headings``: world heading (rad) of each local Manhattan frame, by id.
     ``path``: the robot's nominal path (corridor centre line with rounded corners).
     ``lamps``: (K, 2) ceiling lamp positions (x, y) for the light map.
+    ``look_alike``: ``aliased`` only: ``(x0, x1, shift)``, the stretch ``x0 <= x <= x1`` of
+    corridor A (on ``y = 0``) that reappears, identical, moved by ``shift`` (2,) (corridor B).
     """
 
     layout: str
@@ -161,6 +172,7 @@ class Scene:
     lamps: np.ndarray
     ceiling_height: float
     bounds: tuple[float, float, float, float]
+    look_alike: tuple | None = None
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``vertices`` (4S, 3) float32, ``triangles`` (2S, 3) uint32, ``tri_surface`` (2S,) int32."""
@@ -208,17 +220,21 @@ class _Builder:
     def ring(self, Q: np.ndarray) -> None:
         """Walls along a closed ring of 2-D points, free space on the left of each edge."""
         for i in range(len(Q)):
-            q0, q1 = Q[i], Q[(i + 1) % len(Q)]
-            ln = float(np.linalg.norm(q1 - q0))
-            if ln < 1e-6:
-                continue
-            d = (q1 - q0) / ln
-            k = self.frame_of(d)
-            tint = self.paints[k] * (1.0 + self.rng.normal(0.0, 0.01))
-            self.surfaces.append(Surface(
-                LABEL_WALL, MAT_WALL, np.array([q1[0], q1[1], 0.0]), np.array([-d[0], -d[1], 0.0]), _Z.copy(),
-                (ln, self.h), mframe=k, tint=tint, offset=(float(self.rng.uniform(0, 5.12)), 0.0)))
-            self.walls.append((q0, q1, k, tint))
+            self.wall(Q[i], Q[(i + 1) % len(Q)])
+
+    def wall(self, q0, q1) -> None:
+        """One wall from ``q0`` to ``q1`` (2-D), free space on its left; tint and texture offset drawn."""
+        q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+        ln = float(np.linalg.norm(q1 - q0))
+        if ln < 1e-6:
+            return
+        d = (q1 - q0) / ln
+        k = self.frame_of(d)
+        tint = self.paints[k] * (1.0 + self.rng.normal(0.0, 0.01))
+        self.surfaces.append(Surface(
+            LABEL_WALL, MAT_WALL, np.array([q1[0], q1[1], 0.0]), np.array([-d[0], -d[1], 0.0]), _Z.copy(),
+            (ln, self.h), mframe=k, tint=tint, offset=(float(self.rng.uniform(0, 5.12)), 0.0)))
+        self.walls.append((q0, q1, k, tint))
 
     def floor_and_ceiling(self, margin: float = 0.5) -> tuple[float, float, float, float]:
         pts = np.array([w[0] for w in self.walls])
@@ -233,11 +249,11 @@ class _Builder:
         return (float(x0), float(y0), float(x1), float(y1))
 
     def decorate_walls(self, n_posters: int, n_doors: int, door_p=0.22, poster_p=0.42, door_proud=0.012,
-                       poster_proud=0.004) -> None:
+                       poster_proud=0.004, walls=None) -> None:
         """Doors and posters (standing ``door_proud`` / ``poster_proud`` m out) along every wall
-        longer than 1 m."""
+        longer than 1 m (of ``walls``, default all)."""
         rng = self.rng
-        for q0, q1, k, tint in self.walls:
+        for q0, q1, k, tint in (self.walls if walls is None else walls):
             ln = float(np.linalg.norm(q1 - q0))
             if ln < 1.0:
                 continue
@@ -285,9 +301,9 @@ class _Builder:
             return False
         return all(np.linalg.norm(centre - c) > radius + r + 0.05 for c, r in self.boxes)
 
-    def boxes_along_walls(self, per_metre: float, path_pts, clearance: float, n_designs: int) -> None:
+    def boxes_along_walls(self, per_metre: float, path_pts, clearance: float, n_designs: int, walls=None) -> None:
         rng = self.rng
-        for q0, q1, _, _ in self.walls:
+        for q0, q1, _, _ in (self.walls if walls is None else walls):
             ln = float(np.linalg.norm(q1 - q0))
             if ln < 1.6:
                 continue
@@ -349,11 +365,58 @@ def _corridor_rings(P: np.ndarray, width: float, closed: bool) -> list[np.ndarra
 _MIN_LOOP_WIDTH = 1.4
 
 
-def min_path_length(layout: str, turn_radius: float = 0.9, corridor_width: float = 2.0) -> float:
-    """Shortest path (m) a layout can be built for."""
+def _loop_min_half(turn_radius: float, corridor_width: float) -> float:
+    """Least ``a + b`` (m) of the ``loop`` layout's centre-line rectangle: the short side
+    ``b = 0.4 (a + b)`` keeps an inner block of 0.6 m beside a corridor of up to
+    ``_MIN_LOOP_WIDTH``, and both sides hold the two quarter arcs of their corners
+    (tangent length ``r`` each, so ``a, b >= 2 r``; ``build_scene`` lengthens ``b`` to ``2 r``)."""
+    return max((min(corridor_width, _MIN_LOOP_WIDTH) + 0.6) / 0.4, 4.0 * turn_radius)
+
+
+def _building_sides(lap: float, r: float, w: float) -> tuple[float, float, float, float]:
+    """``(A, B, nx, ny)`` (m) of the ``building`` centre line: an A x B rectangle (A along x)
+    with an nx x ny notch cut from one corner, whose rounded path is ``lap`` metres long.
+
+    The notch keeps the perimeter 2 (A + B); each of the six 90 deg corners shortens the
+    path by ``r (2 - pi / 2)``."""
+    half = (lap + 6.0 * r * (2.0 - math.pi / 2)) / 2.0
+    A, B = 0.6 * half, 0.4 * half
+    return A, B, 0.35 * A, 0.4 * B
+
+
+def _building_min_lap(r: float, w: float) -> float:
+    """Shortest lap (m) of ``building``: every edge holds its two arcs (>= 2 r) and the block
+    is at least 0.6 m thick next to the notch (B - ny, A - nx >= w + 0.6)."""
+    need_b = max(2.0 * r / 0.4, (w + 0.6) / 0.6)          # ny = 0.4 B, B - ny = 0.6 B
+    need_a = max(2.0 * r / 0.35, (w + 0.6) / 0.65)        # nx = 0.35 A, A - nx = 0.65 A
+    half = max(need_b / 0.4, need_a / 0.6)
+    return 2.0 * half - 6.0 * r * (2.0 - math.pi / 2)
+
+
+def _aliased_gaps(r: float, w: float) -> tuple[float, float, float]:
+    """``(g, g2, D)`` of ``aliased``: corridor A's look-alike stretch ends ``g`` before the
+    connector's centre line, B's starts ``g2`` after it (past the arc), and the connector is
+    ``D`` long (its two arcs and a 0.6 m straight)."""
+    return w / 2 + 0.3, r + w / 2 + 0.3, 2.0 * r + 0.6
+
+
+def _aliased_module(path_length: float, r: float, w: float) -> float:
+    """Length (m) of each of the two look-alike corridor stretches of ``aliased``."""
+    g, g2, D = _aliased_gaps(r, w)
+    return (path_length - g - g2 - D + 4.0 * r - math.pi * r) / 2.0
+
+
+def min_path_length(layout: str, turn_radius: float = 0.9, corridor_width: float = 2.0,
+                    laps: float = 1.0) -> float:
+    """Shortest path (m) a layout can be built for (``laps`` times a lap for closed layouts)."""
     r = turn_radius
+    if layout == "building":
+        return laps * _building_min_lap(r, corridor_width)
+    if layout == "aliased":
+        g, g2, D = _aliased_gaps(r, corridor_width)
+        return 2.0 * ALIASED_MIN_MODULE_M + g + g2 + D - 4.0 * r + math.pi * r
     return {"straight": 0.5, "lturn": 2 * r + 1.0, "two_frames": 2 * r + 1.0,
-            "loop": 2 * (min(corridor_width, _MIN_LOOP_WIDTH) + 0.6) / 0.4 - 8 * r + 2 * math.pi * r,
+            "loop": laps * (2 * _loop_min_half(r, corridor_width) - 8 * r + 2 * math.pi * r),
             "hall": math.pi * 1.5 + 2.0}[layout]
 
 
@@ -361,7 +424,8 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
                 ceiling_height: float = 2.6, turn_radius: float = 0.9, clearance: float = 0.57,
                 n_posters: int = 24, n_doors: int = 4, n_box_designs: int = 12, door_proud: float = 0.012,
                 poster_proud: float = 0.004, box_density: float = 0.2, branch_angle_deg: float = 60.0) -> Scene:
-    """Build ``layout`` for a path of ``path_length`` metres (deterministic for ``seed``).
+    """Build ``layout`` for a path of ``path_length`` metres (one lap of the closed layouts
+    ``loop`` and ``building``; deterministic for ``seed``).
 
     ``clearance``: minimum distance (m) of boxes and pillars from the nominal path.
     Raises ``ValueError`` if the path is too short for the layout.
@@ -373,6 +437,10 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         raise ValueError(f"layout {layout!r} needs a path of at least {need:.1f} m, got {path_length:.1f} m")
     rng = np.random.default_rng([int(seed), 1031])
     r, w, L = turn_radius, corridor_width, path_length
+    if layout in ("building", "aliased"):
+        build = _build_building if layout == "building" else _build_aliased
+        return build(rng, L, r, w, ceiling_height, clearance, n_posters, n_doors, n_box_designs, door_proud,
+                     poster_proud, box_density)
     headings = [0.0]
     closed = False
     h = ceiling_height
@@ -392,7 +460,9 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         C = np.array([[-3.0, 0.0], [a, 0.0], [a, 0.0] + (b + 6.0) * d2])
     elif layout == "loop":
         s = (L + 8 * r - 2 * math.pi * r) / 2  # a + b of the centre-line rectangle
-        b = 0.4 * s
+        # the short side holds two quarter arcs (tangent length r each): a wide corner radius
+        # (a fast robot, speed / max_yaw_rate) on a short lap needs more than 0.4 s
+        b = max(0.4 * s, 2.0 * r)
         a = s - b
         w = min(w, b - 0.6)  # keep a solid inner block of at least 0.6 m
         P = np.array([[-a / 2, 0.0], [a / 2, 0.0], [a / 2, b], [-a / 2, b]])
@@ -440,3 +510,137 @@ def build_scene(layout: str, path_length: float, seed: int, *, corridor_width: f
         B.boxes_along_walls(box_density, path_pts, clearance, n_box_designs)
         lamps = _polyline_samples(C, 2.4, closed)
     return Scene(layout, B.surfaces, headings, path, lamps, h, bounds)
+
+
+def _build_building(rng, L, r, w, h, clearance, n_posters, n_doors, n_box_designs, door_proud, poster_proud,
+                    box_density) -> Scene:
+    """``building``: a ring of corridors round a block with a notch cut from one corner, one
+    lap ``L`` metres; the path starts in the middle of the longest side (so a robot driving
+    more than a lap revisits its start on a straight). Doors and posters come from
+    ``BUILDING_DOOR_DESIGNS`` / ``BUILDING_POSTER_DESIGNS`` designs only, so they repeat."""
+    need = _building_min_lap(r, w)
+    if L < need - 1e-9:
+        raise ValueError(f"layout 'building' needs a lap of at least {need:.1f} m, got {L:.1f} m")
+    A, B_, nx, ny = _building_sides(L, r, w)
+    # counter-clockwise, free space on the left; the notch takes the corner at (A/2, B)
+    P = np.array([[-A / 2, 0.0], [A / 2, 0.0], [A / 2, B_ - ny], [A / 2 - nx, B_ - ny], [A / 2 - nx, B_],
+                  [-A / 2, B_]])
+    path = RoundedPath(P, r, closed=True)
+    B = _Builder("building", rng, h, [0.0])
+    for ring in _corridor_rings(P, w, True):
+        B.ring(ring)
+    bounds = B.floor_and_ceiling()
+    B.decorate_walls(min(n_posters, BUILDING_POSTER_DESIGNS), min(n_doors, BUILDING_DOOR_DESIGNS),
+                     door_proud=door_proud, poster_proud=poster_proud)
+    B.boxes_along_walls(box_density, path.samples(0.1), clearance, n_box_designs)
+    return Scene("building", B.surfaces, [0.0], path, _polyline_samples(P, 2.4, True), h, bounds)
+
+
+def _minus_interval(q0: np.ndarray, q1: np.ndarray, lo: float, hi: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pieces of the x-aligned wall ``q0 -> q1`` outside ``lo <= x <= hi``, in the wall's direction."""
+    a, b = sorted((float(q0[0]), float(q1[0])))
+    keep = [(a, min(b, lo)), (max(a, hi), b)]
+    pieces = [(np.array([x0, q0[1]]), np.array([x1, q0[1]])) for x0, x1 in keep if x1 - x0 > 1e-6]
+    if q1[0] < q0[0]:
+        pieces = [(p1, p0) for p0, p1 in reversed(pieces)]
+    return pieces
+
+
+def _translated(surfaces: list[Surface], shift) -> list[Surface]:
+    """Copies of ``surfaces`` moved by ``shift`` (2-D): same sizes, designs, tints and texture offsets."""
+    d = np.array([shift[0], shift[1], 0.0])
+    return [Surface(s.label, s.material, s.origin + d, s.axis_u.copy(), s.axis_v.copy(), s.size, s.mframe,
+                    s.design, s.tint.copy(), s.offset) for s in surfaces]
+
+
+def _split_rect(rect, holes) -> list[tuple[float, float, float, float]]:
+    """Rectangles ``(x0, y0, x1, y1)`` covering ``rect`` minus ``holes`` (inside it, disjoint in x)."""
+    x0, y0, x1, y1 = rect
+    out, x = [], x0
+    for hx0, hy0, hx1, hy1 in sorted(holes):
+        out += [(x, y0, hx0, y1), (hx0, y0, hx1, hy0), (hx0, hy1, hx1, y1)]
+        x = hx1
+    out.append((x, y0, x1, y1))
+    return [r for r in out if r[2] - r[0] > 1e-6 and r[3] - r[1] > 1e-6]
+
+
+def _tiled_floor_and_ceiling(B: _Builder, hole_a, shift) -> tuple[float, float, float, float]:
+    """Floor and ceiling as rectangles with world-fixed texture, except that the rectangle
+    ``hole_a`` moved by ``shift`` repeats the texture of ``hole_a`` (look-alike corridors)."""
+    pts = np.array([q for w in B.walls for q in w[:2]])
+    x0, y0 = pts.min(0) - 0.5
+    x1, y1 = pts.max(0) + 0.5
+    off = B.rng.uniform(0, 10.24, 2)
+    hole_b = (hole_a[0] + shift[0], hole_a[1] + shift[1], hole_a[2] + shift[0], hole_a[3] + shift[1])
+    rects = [(r, r) for r in _split_rect((x0, y0, x1, y1), [hole_a, hole_b]) + [hole_a]] + [(hole_b, hole_a)]
+    for (rx0, ry0, rx1, ry1), (tx0, ty0, _, _) in rects:  # (where, whose texture)
+        B.surfaces.append(Surface(LABEL_FLOOR, MAT_FLOOR, np.array([rx0, ry0, 0.0]), np.array([1.0, 0, 0]),
+                                  np.array([0, 1.0, 0]), (rx1 - rx0, ry1 - ry0),
+                                  offset=(float(off[0] + tx0 - x0), float(off[1] + ty0 - y0))))
+        B.surfaces.append(Surface(LABEL_CEILING, MAT_CEILING, np.array([rx0, ry0, B.h]), np.array([0, 1.0, 0]),
+                                  np.array([1.0, 0, 0]), (ry1 - ry0, rx1 - rx0),
+                                  offset=(float(ty0 - y0), float(tx0 - x0))))
+    return (float(x0), float(y0), float(x1), float(y1))
+
+
+def _build_aliased(rng, L, r, w, h, clearance, n_posters, n_doors, n_box_designs, door_proud, poster_proud,
+                   box_density) -> Scene:
+    """``aliased``: two corridors that look the same at different places (perceptual aliasing).
+
+    The path drives east along corridor A, turns left into a short connector and right into
+    corridor B, parallel to A and further east, and never comes back. A stretch of ``La``
+    metres of B (from ``g2`` past the connector) is a copy of the first ``La`` metres of A
+    moved by ``(xb, D)``: walls with their texture offsets and tints, doors, posters, boxes,
+    floor and ceiling tiles and lamps; seen with the same heading, so a place recogniser
+    that matches B to A is wrong (no place of B is a place of A)."""
+    La = _aliased_module(L, r, w)
+    if La < ALIASED_MIN_MODULE_M - 1e-9:
+        raise ValueError(f"layout 'aliased' needs two corridors of at least {ALIASED_MIN_MODULE_M} m, "
+                         f"got {La:.1f} m")
+    g, g2, D = _aliased_gaps(r, w)
+    X1 = La + g
+    xb = X1 + g2
+    shift = np.array([xb, D])
+    path = RoundedPath(np.array([[0.0, 0.0], [X1, 0.0], [X1, D], [xb + La, D]]), r)
+    path_pts = path.samples(0.1)
+    B = _Builder("aliased", rng, h, [0.0])
+    n0 = len(B.surfaces)
+    B.wall((0.0, -w / 2), (La, -w / 2))  # corridor A's right wall, then its left (free space on the left)
+    B.wall((La, w / 2), (0.0, w / 2))
+    module = list(B.walls)
+    B.decorate_walls(n_posters, n_doors, door_proud=door_proud, poster_proud=poster_proud, walls=module)
+    B.boxes_along_walls(box_density, path_pts, clearance, n_box_designs, walls=module)
+    B.surfaces.extend(_translated(B.surfaces[n0:], shift))
+    B.boxes.extend([(c + shift, rad) for c, rad in B.boxes])
+    B.walls.extend([(q0 + shift, q1 + shift, k, t) for q0, q1, k, t in module])
+    # B ends in a wall as far past its look-alike stretch as the connector's far wall is past A's,
+    # so that the view down the corridor ends alike too
+    C = np.array([[-3.0, 0.0], [X1, 0.0], [X1, D], [xb + La + g + w / 2, D]])
+    rest = _aliased_other_walls(B, C, w, La, xb, D)
+    B.decorate_walls(n_posters, n_doors, door_proud=door_proud, poster_proud=poster_proud, walls=rest)
+    B.boxes_along_walls(box_density, path_pts, clearance, n_box_designs, walls=rest)
+    bounds = _tiled_floor_and_ceiling(B, (0.0, -w / 2, La, w / 2), shift)
+    lamps_a = np.column_stack([np.arange(1.2, La, 2.4), np.zeros(len(np.arange(1.2, La, 2.4)))])
+    others = _polyline_samples(C, 2.4, False)
+    far = np.array([not ((abs(p[1]) < 1e-6 and -1.2 < p[0] < La + 1.2)
+                         or (abs(p[1] - D) < 1e-6 and xb - 1.2 < p[0] < xb + La + 1.2)) for p in others])
+    lamps = np.vstack([lamps_a, lamps_a + shift, others[far]])
+    return Scene("aliased", B.surfaces, [0.0], path, lamps, h, bounds, (0.0, La, shift))
+
+
+def _aliased_other_walls(B: _Builder, C: np.ndarray, w: float, La: float, xb: float, D: float) -> list:
+    """Walls of the Z-shaped corridor ``C`` except the two look-alike stretches; returns them."""
+    Q = _corridor_rings(C, w, False)[0]
+    rest = []
+    for i in range(len(Q)):
+        pieces = [(Q[i], Q[(i + 1) % len(Q)])]
+        if abs(Q[i][1] - Q[(i + 1) % len(Q)][1]) < 1e-9:  # along x: may hold a look-alike stretch
+            if abs(abs(Q[i][1]) - w / 2) < 1e-6:
+                pieces = [p for a, b in pieces for p in _minus_interval(a, b, 0.0, La)]
+            if abs(abs(Q[i][1] - D) - w / 2) < 1e-6:
+                pieces = [p for a, b in pieces for p in _minus_interval(a, b, xb, xb + La)]
+        for a, b in pieces:
+            n = len(B.walls)
+            B.wall(a, b)
+            rest.extend(B.walls[n:])
+    return rest
