@@ -382,6 +382,7 @@ class PlanarPoseGraph:
         self._graph = gtsam.NonlinearFactorGraph()
         self._initial = gtsam.Values()
         self._result: gtsam.Values | None = None
+        self._without_closures: gtsam.Values | None = None
         self._solve: dict = {}
         self._prunable: list[int] = []    # indices of Manhattan links and extra relative factors
         self._pruned: Counter = Counter()
@@ -437,6 +438,13 @@ class PlanarPoseGraph:
         before any), ``reason`` (None, or why it was removed), then the caller's ``info``."""
         return self._b.closure_dicts()
 
+    def solve_without_closures(self) -> np.ndarray:
+        """(N, 3) float64 ``T_odom_base`` of the graph without its loop closures: the first
+        stage of :meth:`optimize` (Manhattan pruning included), which solves it anyway."""
+        if self._result is None:
+            self.optimize()
+        return self._b.poses_from(self._without_closures)
+
     def _lm(self, values: gtsam.Values) -> tuple[gtsam.Values, int, float]:
         cfg = self.config
         params = gtsam.LevenbergMarquardtParams()
@@ -463,6 +471,7 @@ class PlanarPoseGraph:
         if self.config.prune_sigmas > 0 and self._prune(self._result):
             self._result, its, error = self._lm(self._result)
             iterations += its
+        self._without_closures = self._result  # the solution evaluate shows as "smoothed, no loops"
         if closures:
             its, error = self._solve_closures(self._result)
             iterations += its
@@ -674,6 +683,21 @@ class IncrementalPlanarPoseGraph:
         """As :meth:`PlanarPoseGraph.closures`; residuals at the last closure check (None for
         closures still queued)."""
         return self._b.closure_dicts()
+
+    def solve_without_closures(self) -> np.ndarray:
+        """(N, 3) float64 ``T_odom_base`` of iSAM2's factors without the loop closures, by
+        batch Levenberg-Marquardt from the chained initial values (iSAM2 itself cannot
+        un-learn them): for evaluate's side-by-side, not used by the run."""
+        graph = self._isam.getFactorsUnsafe().clone()
+        for c in self._b.closures:
+            if c.status == "active" and c.index is not None:
+                graph.remove(c.index)
+        values = gtsam.Values(self._isam.getLinearizationPoint())
+        for k, p in enumerate(self._b.guess):
+            values.update(X(k), gtsam.Pose2(*map(float, p)))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.lm_max_iterations)
+        return self._b.poses_from(gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize())
 
     def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *,
               force: bool = False) -> bool:

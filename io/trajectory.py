@@ -279,3 +279,25 @@ def read_poses_mcap(path) -> dict[str, Trajectory]:
     return {name: Trajectory(np.asarray(st), np.asarray(P).reshape(-1, 4, 4), frame_id=frame,
                              child_frame_id=children.get(name, "camera_optical_frame"))
             for name, (st, P, frame) in out.items()}
+
+
+def read_lines_mcap(path, name: str) -> np.ndarray:
+    """The last line list written by :func:`write_poses_mcap` on ``/planar_vo/NAME`` (either
+    format) as (M, 2, 3) endpoints; (0, 2, 3) when the file has none."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+    from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: poses file not found")
+    points: list = []
+    try:
+        with open(p, "rb") as f:
+            reader = make_reader(f, decoder_factories=[ProtobufDecoders(), Ros2Decoders()])
+            for _, _, _, msg in reader.iter_decoded_messages(topics=[f"/planar_vo/{name}"]):
+                lines = msg.markers[0].points if hasattr(msg, "markers") else msg.entities[0].lines[0].points
+                points = [(q.x, q.y, q.z) for q in lines]
+    except Exception as exc:  # noqa: BLE001 - any reader failure means a bad file
+        raise InputError(f"{p}: not a readable poses MCAP ({type(exc).__name__}: {exc})") from None
+    return np.asarray(points, dtype=float).reshape(-1, 2, 3)

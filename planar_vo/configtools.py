@@ -16,10 +16,22 @@ from planar_vo.core.errors import ConfigError
 T = TypeVar("T")
 
 
+def _yaml11_float(text: str):
+    """``float(text)`` for exponent notation PyYAML leaves as a string (``1.0e12``), else ``text``."""
+    if "e" not in text.lower():
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def _check_scalar(value: Any, tp: Any, path: str) -> Any:
     if tp is Any:
         return value
     if tp is float:
+        if isinstance(value, str):
+            value = _yaml11_float(value)  # YAML 1.1 reads 1.0e12 (no sign) as a string
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"config key '{path}': expected a number, got {value!r}")
         return float(value)

@@ -94,6 +94,7 @@ class Candidate:
     source: str            # "appearance", "proximity" or "both"
     score: float | None = None         # appearance score
     mahalanobis: float | None = None   # proximity: squared distance of the gate
+    odometry_d2: float | None = None   # verified pose against the chain: squared Mahalanobis distance
     verdict: str = ""      # "accepted", "rejected", later "removed" by the graph
     reason: str = ""
     matches: int = 0
@@ -139,8 +140,9 @@ class LoopCloser:
         found = self._candidates(kf)
         t2 = time.perf_counter()
         self.time_s["candidates"] += t2 - t1
+        rel, cov = self._chain.relative_to_now()
         for pos, cand in found:
-            self._verify(self.keyframes[pos], kf, cand)
+            self._verify(self.keyframes[pos], kf, cand, rel[pos], cov[pos])
         self.time_s["verify"] += time.perf_counter() - t2
         self._chain.new_keyframe()
         self.keyframes.append(kf)
@@ -189,8 +191,11 @@ class LoopCloser:
         best = ok[np.argsort(d2[ok])[:c.proximity_candidates]]
         return [(int(k), float(d2[k])) for k in best]
 
-    def _verify(self, a: Keyframe, b: Keyframe, cand: Candidate) -> None:
-        """Verify one pair; an accepted pair becomes a closure factor in the graph."""
+    def _verify(self, a: Keyframe, b: Keyframe, cand: Candidate, chain_pose, chain_cov) -> None:
+        """Verify one pair; an accepted pair becomes a closure factor in the graph unless it
+        contradicts the odometry chain's relative pose ``chain_pose`` (3,) beyond its
+        covariance ``chain_cov`` (3, 3), scaled by ``odometry_sigma_scale`` (a place that
+        looks the same somewhere else: repeated doors and posters)."""
         t0 = time.perf_counter()
         check = verify_closure(a, b, self.T_base_cam, self.places, seed=self.seed + len(self.candidates))
         cand.verify_ms = 1000.0 * (time.perf_counter() - t0)
@@ -198,7 +203,12 @@ class LoopCloser:
         cand.verdict, cand.reason = ("accepted" if check.accepted else "rejected"), check.reason
         if check.pose is not None:
             cand.pose = [float(v) for v in check.pose]
-        if not check.accepted:
+        if check.accepted:
+            cand.odometry_d2 = odometry_distance(chain_pose, chain_cov, check.pose, _covariance(check.information),
+                                                 self.config.odometry_sigma_scale)
+            if cand.odometry_d2 > self.config.odometry_chi2:
+                cand.verdict, cand.reason = "rejected", "inconsistent_with_odometry"
+        if cand.verdict != "accepted":
             return
         cand.sigma = [float(v) for v in np.sqrt(np.diag(_covariance(check.information)))]
         cand.closure_id = self.graph.add_closure(a.index, b.index, check.pose, check.information,
@@ -231,6 +241,16 @@ class LoopCloser:
     def accepted(self) -> list[tuple[int, int]]:
         """``(a, b)`` pose indices of the closures in the final solution."""
         return [(c.a, c.b) for c in self.candidates if c.verdict == "accepted"]
+
+
+def odometry_distance(chain_pose, chain_cov, pose, cov, scale: float) -> float:
+    """Squared Mahalanobis distance between a verified relative pose ``pose`` (3,) with
+    covariance ``cov`` and the odometry chain's ``chain_pose`` with ``chain_cov`` (both
+    ``T_base_a_base_b``, gtsam.Pose2 tangent order), the chain's covariance scaled by
+    ``scale ** 2`` (the steps' stated sigmas may be optimistic by this much)."""
+    e = gtsam.Pose2.Logmap(gtsam.Pose2(*map(float, chain_pose)).between(gtsam.Pose2(*map(float, pose))))
+    S = scale ** 2 * np.asarray(chain_cov) + np.asarray(cov)
+    return float(e @ np.linalg.solve(S, e))
 
 
 def _count(items) -> dict[str, int]:

@@ -40,3 +40,12 @@ def test_bad_config_is_one_clear_error(tmp_path, text, needle):
     with pytest.raises(ConfigError, match=None) as ei:
         load_config(p)
     assert needle in str(ei.value)
+
+
+def test_exponent_without_sign_is_a_number(tmp_path):
+    """PyYAML (YAML 1.1) reads ``1.0e12`` as a string; a float key takes it as the number."""
+    from planar_vo.config import load_config
+
+    p = tmp_path / "c.yaml"
+    p.write_text("loops:\n  odometry_chi2: 1.0e12\n")
+    assert load_config(p).loops.odometry_chi2 == 1.0e12

@@ -1,13 +1,14 @@
 """Loop closure on building rings: ``planar-vo bench loops --seeds A-B``.
 
-``planar-vo bench loops --seeds 5000-5001 [--laps 1.5] [--layout building] [--cache DIR]
-[--out DIR] [--no-online]``
+``planar-vo bench loops --seeds 5000-5001 [--layout building] [--laps 1.5] [--lap-m 40]
+[--speed 0.4] [--rate 10] [--cache DIR] [--out DIR] [--no-online]``
 
 For every seed a randomized log of ``--layout`` (default the building ring: corridors
-round a block, repeating doors and posters) driven ``--laps`` laps is rendered into the
-cache (reused), then run end to end three ways -- batch with loop closure, batch without
-(``--no-loops``) and online (iSAM2) with loop closure -- and compared with its ground
-truth. Printed per log and as median / worst over logs:
+round a block, repeating doors and posters; scene, texture, mount, wobble and sensor
+drawn from the seed as in ``bench sweep``, speed and rate fixed so that the frame count
+stays renderable) driven ``--laps`` laps is rendered into the cache (reused), then run end
+to end with loop closure in batch and online (iSAM2), and compared with its ground truth
+(the batch run also writes the solution without closures). Printed per log and as median / worst over logs:
 
 * raw, smoothed-without-loops and smoothed end-point drift (% of path) and ATE (m);
 * revisited keyframes (ground truth: :func:`planar_vo.sim.revisits.revisit_pairs`) and the
@@ -34,8 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", required=True, metavar="A-B", help="inclusive seed range, e.g. 5000-5001")
     parser.add_argument("--layout", default="building", help="synth layout (default building)")
     parser.add_argument("--laps", type=float, default=1.5, help="laps driven (default 1.5)")
+    parser.add_argument("--lap-m", type=float, default=40.0, help="lap length in m (default 40)")
+    parser.add_argument("--speed", type=float, default=0.4, help="cruise speed m/s (default 0.4)")
+    parser.add_argument("--rate", type=float, default=10.0, help="frame rate Hz (default 10)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",
-                        help="at least N frames (default: what the laps need)")
+                        help="N frames (default: what the laps of --lap-m need at --speed and --rate)")
     parser.add_argument("--cache", default="runs/loops_cache", help="rendered logs, reused (default runs/loops_cache)")
     parser.add_argument("--out", default="runs/loops", help="run folders and loops.json (default runs/loops)")
     parser.add_argument("--no-online", action="store_true", help="skip the online (iSAM2) run")
@@ -43,15 +47,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _log_for(seed: int, args) -> tuple[Path, object]:
-    """Render (or reuse) the randomized log of ``seed``; ``(log path, SynthConfig)``."""
+    """Render (or reuse) the randomized log of ``seed`` at ``--speed`` and ``--rate``, with
+    the frames for ``--laps`` laps of ``--lap-m``; ``(log path, SynthConfig)``."""
     from dataclasses import replace
 
     from planar_vo.bench.sweep import log_name
-    from planar_vo.sim.synth import write_synth_log
+    from planar_vo.sim.synth import frames_for_laps, write_synth_log
     from planar_vo.sim.synth_random import randomized_config
 
-    cfg = randomized_config(seed, args.layout, laps=args.laps, n_frames=args.frames)
-    cfg = replace(cfg, laps=args.laps)
+    cfg = randomized_config(seed, args.layout)
+    n = args.frames or frames_for_laps(args.laps, args.lap_m, args.speed, args.rate)
+    cfg = replace(cfg, speed=args.speed, rate_hz=args.rate, n_frames=n, laps=args.laps)
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     name = log_name(cfg)
