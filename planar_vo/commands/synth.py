@@ -170,7 +170,7 @@ def main(args: argparse.Namespace) -> int:
           f"{cfg.path_length:.1f} m, {cfg.n_frames / dt:.1f} frames/s)")
     print(f"ground truth: {paths['ground_truth']}")
     if cfg.layout in CLOSED_LAYOUTS:
-        print(f"{cfg.layout}: {cfg.laps_used:g} laps of {cfg.path_length / cfg.laps_used:.1f} m")
+        print(f"{cfg.layout}: a lap of {cfg.path_length / cfg.laps_used:.1f} m, driven {cfg.laps_used:g} times")
     if odom is not None:
         where = "/tf (odom -> base_link)" if args.wheel_odom_on == "tf" else "/odom"
         print(f"wheel odometry: {where}, scale {odom.scale:+g}, wheelbase {odom.wheelbase:+g}, "

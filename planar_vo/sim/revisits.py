@@ -53,6 +53,7 @@ def revisit_pairs(T_odom_base, candidates, *, max_distance_m: float = 1.0, max_a
     least ``min_path_gap_m`` metres driven between them (so that neighbours along the path,
     which any odometry links, do not count). Sorted by ``later``, then ``earlier``; every
     earlier keyframe in reach is listed, so a later one may appear in several pairs.
+    Memory is O(K^2) (a few K x K arrays): meant for keyframes, not every frame of a long log.
     """
     if not (max_distance_m >= 0 and max_angle_deg >= 0 and min_path_gap_m >= 0):
         raise ValueError("revisit_pairs: max_distance_m, max_angle_deg and min_path_gap_m must be >= 0")
