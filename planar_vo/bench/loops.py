@@ -125,12 +125,13 @@ def evaluate_log(seed: int, args) -> dict:
     gt = read_tum_trajectory(str(log)[:-5] + ".gt.tum")
     out = Path(args.out) / log.stem
     rep = _run(log, out / "batch", args.config, {})
-    rec = {"seed": seed, "log": log.name, "frames": rep["frames"]["with_pose"]}
+    rec = {"seed": seed, "log": log.name, "frames": rep["frames"]["with_pose"], "texture": cfg.texture}
     ev = evaluate_run(out / "batch", gt)
     for k in ("raw", "smoothed_no_loops", "smoothed"):
         if k in ev:
             rec[f"{k}_drift_pct"], rec[f"{k}_ate_m"] = ev[k]["endpoint_drift_pct"], ev[k]["ate_rmse_m"]
     rec["path_m"] = ev["smoothed"]["path_length_m"]
+    rec["smoothed_end_error_m"] = ev["smoothed"]["endpoint_drift_m"]
     stamps = np.loadtxt(out / "batch" / "smoothed.tum", usecols=0, ndmin=1)
     gt_base = _base_poses(gt, stamps, np.asarray(synth_mount(cfg).T_base_cam))
     kept = [c for c in rep["loop_closure"]["list"] if c["verdict"] == "accepted"]
@@ -150,9 +151,9 @@ def evaluate_log(seed: int, args) -> dict:
     return rec
 
 
-COLUMNS = (("frames", "frames", "{:d}"), ("path_m", "path m", "{:.1f}"), ("raw_drift_pct", "raw %", "{:.2f}"),
+COLUMNS = (("texture", "texture", "{}"), ("frames", "frames", "{:d}"), ("path_m", "path m", "{:.1f}"), ("raw_drift_pct", "raw %", "{:.2f}"),
            ("smoothed_no_loops_drift_pct", "no loops %", "{:.2f}"), ("smoothed_drift_pct", "smoothed %", "{:.3f}"),
-           ("smoothed_ate_m", "ATE m", "{:.3f}"), ("closed_pct", "revisits closed %", "{:.0f}"),
+           ("smoothed_end_error_m", "end error m", "{:.3f}"), ("smoothed_ate_m", "ATE m", "{:.3f}"), ("closed_pct", "revisits closed %", "{:.0f}"),
            ("kept", "kept", "{:d}"), ("removed", "removed", "{:d}"),
            ("closure_error_m_worst", "worst closure m", "{:.3f}"),
            ("closure_error_deg_worst", "worst closure deg", "{:.2f}"),
@@ -164,8 +165,28 @@ def format_table(records: list[dict]) -> str:
     cols = [c for c in COLUMNS if any(c[0] in r for r in records)]
     lines = ["| seed | " + " | ".join(h for _, h, _ in cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for r in records:
-        cells = [(f.format(r[k]) if isinstance(r.get(k), (int, float)) else "n/a") for k, _, f in cols]
+        cells = [(f.format(r[k]) if isinstance(r.get(k), (int, float, str)) else "n/a") for k, _, f in cols]
         lines.append(f"| {r['seed']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+#: Summary rows: key, label, whether larger is worse (else smaller is worse).
+SUMMARY = (("smoothed_drift_pct", "smoothed drift %", True), ("smoothed_end_error_m", "smoothed end error m", True),
+           ("smoothed_ate_m", "smoothed ATE m", True), ("closed_pct", "revisits closed %", False),
+           ("closure_error_m_worst", "worst closure error m", True),
+           ("closure_error_deg_worst", "worst closure error deg", True),
+           ("batch_vs_online_m", "batch - online m", True), ("online_fps", "online fps", False),
+           ("loops_cpu_ms_per_frame", "loop closure CPU ms/frame", True))
+
+
+def summary(records: list[dict]) -> str:
+    """Median and worst over the logs of the figures the issue's targets name."""
+    lines = ["| over logs | median | worst |", "|---|---|---|"]
+    for key, label, larger_worse in SUMMARY:
+        v = np.array([r[key] for r in records if isinstance(r.get(key), (int, float)) and math.isfinite(r[key])])
+        if len(v):
+            worst = v.max() if larger_worse else v.min()
+            lines.append(f"| {label} | {np.median(v):.4g} | {worst:.4g} |")
     return "\n".join(lines)
 
 
@@ -179,6 +200,7 @@ def main(args: argparse.Namespace) -> int:
         records.append(rec)
         print(format_table([rec]).splitlines()[-1], flush=True)
     print(format_table(records))
+    print(summary(records))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     write_text_atomic(Path(args.out) / "loops.json", json.dumps(records, indent=2) + "\n")
     return 0
