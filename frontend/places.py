@@ -256,6 +256,7 @@ class ClosureCheck:
     yaw_source: str = ""
     covariance: np.ndarray | None = None   # (3, 3) base_link, the inverse of ``information``
     lev_motion: tuple | None = None        # levelled (yaw, t (3,)) with X_b = R_y(yaw) X_a + t
+    inlier_pairs: np.ndarray | None = None  # (K, 2) int64 keypoint indices [i_a, i_b] of the inliers
 
 
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np.ndarray:
@@ -429,17 +430,19 @@ def _valid(P: np.ndarray) -> np.ndarray:
 def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
     """Descriptor matches between points with depth whose levelled heights agree (a planar
     motion keeps them, so most wrong matches fail here before any model):
-    ``(P1, P2, cov1, cov2, d2_y)`` of the M matches kept, ``cov`` the horizontal covariance
-    entries (:func:`_point_cov`), ``d2_y`` (M,) their vertical Mahalanobis distances, and
-    the number of descriptor matches."""
+    ``(pairs, P1, P2, cov1, cov2, d2_y)`` of the M matches kept, ``pairs`` (M, 2) their
+    keypoint indices in ``a`` and ``b``, ``cov`` the horizontal covariance entries
+    (:func:`_point_cov`), ``d2_y`` (M,) their vertical Mahalanobis distances; and the
+    number of descriptor matches."""
     fa, fb = _valid(a.P_lev), _valid(b.P_lev)
     m = match_descriptors(a.desc[fa], b.desc[fb], config)
-    P1, P2 = a.P_lev[fa][m[:, 0]], b.P_lev[fb][m[:, 1]]
+    pairs = np.column_stack([fa[m[:, 0]], fb[m[:, 1]]])
+    P1, P2 = a.P_lev[pairs[:, 0]], b.P_lev[pairs[:, 1]]
     c1, c2 = _point_cov(P1, config, a.focal_px), _point_cov(P2, config, b.focal_px)
     d2_y = (P2[:, 1] - P1[:, 1]) ** 2 / (c1[3] + c2[3] + 2 * config.height_sigma_m ** 2)
     keep = d2_y < config.chi2
-    return (P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]), d2_y[keep],
-            len(m))
+    return (pairs[keep], P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]),
+            d2_y[keep], len(m))
 
 
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
@@ -450,7 +453,7 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     ``T_base_cam``: (4, 4) the camera mount (its planar part converts the levelled-camera
     motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC.
     """
-    P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
+    pairs, P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
     if len(P1) < config.min_matches:
         return ClosureCheck(False, FEW_MATCHES, None, None, matches=n_matches)
     Q1, Q2 = P1[:, [0, 2]], P2[:, [0, 2]]
@@ -460,21 +463,21 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, *hyp, config)
     n_in = int(inl.sum())
     spread = _spread(Q2[inl])
-    out = dict(matches=n_matches, inliers=n_in, spread_m=spread)
+    out = dict(matches=n_matches, inliers=n_in, spread_m=spread, inlier_pairs=pairs[inl])
     if n_in < config.min_inliers or n_in < config.min_inlier_ratio * len(P1):
         return ClosureCheck(False, FEW_INLIERS, None, None, **out)
-    if spread < config.min_spread_m:
+    if spread < (config.min_spread_many_m if n_in >= config.many_inliers else config.min_spread_m):
         return ClosureCheck(False, POOR_SPREAD, None, None, **out)
     cov = _fit_covariance(A, chi2, n_in)
     source = "2pt"
     mf = _manhattan_yaw(a, b, yaw, float(cov[0, 0]), config)
     if mf is not None and mf[0] == "mismatch":
         return ClosureCheck(False, MANHATTAN_MISMATCH, None, None, yaw_source="manhattan", **out)
-    if mf is not None:
+    if mf is not None and config.yaw_from == "manhattan":
         yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, mf[1], t, inl, config, fixed_yaw=True)
         cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=mf[2] ** 2)
         source = "manhattan"
-        out["inliers"] = int(inl.sum())
+        out["inliers"], out["inlier_pairs"] = int(inl.sum()), pairs[inl]
     t3 = np.array([t[0], 0.0, t[1]])
     pose, cov_b = lev_motion_to_base_step(float(geometry.wrap_angle(yaw)), t3, cov, geometry.mount_se2(T_base_cam))
     cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([config.min_sigma_xy ** 2, config.min_sigma_xy ** 2,
