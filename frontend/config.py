@@ -265,7 +265,7 @@ class PlaceConfig:
     depth_sigma_quad: float = 0.002
     pixel_sigma: float = 1.0
     height_sigma_m: float = 0.01
-    yaw_from: Literal["points", "manhattan"] = "points"
+    yaw_from: Literal["points", "manhattan", "fused"] = "fused"
     manhattan_gate_sigmas: float = 4.0
     manhattan_gate_deg: float = 1.0
     manhattan_min_score: float = 0.05
@@ -288,7 +288,8 @@ class PlaceConfig:
         if self.min_matches < 2 or self.min_inliers < 3:
             raise ConfigError("config keys 'places.min_matches' >= 2 and 'places.min_inliers' >= 3 "
                               f"required, got {self.min_matches!r} and {self.min_inliers!r}")
-        if self.yaw_from not in ("points", "manhattan"):
-            raise ConfigError(f"config key 'places.yaw_from' must be 'points' or 'manhattan', got {self.yaw_from!r}")
+        if self.yaw_from not in ("points", "manhattan", "fused"):
+            raise ConfigError(f"config key 'places.yaw_from' must be 'points', 'manhattan' or 'fused', "
+                              f"got {self.yaw_from!r}")
         if self.depth_sigma_quad < 0 or self.manhattan_min_score < 0:
             raise ConfigError("config keys 'places.depth_sigma_quad' and 'places.manhattan_min_score' must be >= 0")

@@ -66,7 +66,9 @@ class Keyframe:
     float64 levelled normalised coordinates (NaN behind the camera); ``P_lev``: (N, 3)
     float64 levelled points (metres), NaN rows without depth; ``manhattan``: the frame's
     ManhattanObservation list (yaw relative to base_link). ``words``: (W,) int32 sorted
-    bag-of-words ids (:func:`bag_of_words`); ``focal_px``: the camera's fx.
+    bag-of-words ids (:func:`bag_of_words`); ``focal_px``: the camera's fx; ``octave``:
+    (N,) uint8 the pyramid level each keypoint was found at (its position error grows with
+    the level's scale).
     """
 
     index: int
@@ -78,11 +80,12 @@ class Keyframe:
     manhattan: list
     words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     focal_px: float = 525.0  # the camera's focal length (pixel noise to normalised units)
+    octave: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))  # (N,) ORB pyramid level
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the arrays."""
-        return sum(a.nbytes for a in (self.desc, self.px, self.xy_lev, self.P_lev, self.words))
+        return sum(a.nbytes for a in (self.desc, self.px, self.xy_lev, self.P_lev, self.words, self.octave))
 
 
 # ------------------------------------------------------------------------ keyframes
@@ -107,13 +110,18 @@ def _grid_select(kps, shape: tuple[int, int], config: PlaceConfig) -> list:
     return [kps[i] for i in keep]
 
 
+#: ORB's pyramid scale factor (OpenCV's default, stated so the noise model can use it).
+ORB_SCALE = 1.2
+
+
 def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, config: PlaceConfig,
-         lift_args: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(px (N, 2) float32, xy (N, 2), P_cam (N, 3), desc (N, 32) uint8)`` of evenly spread
+         lift_args: tuple) -> tuple[np.ndarray, ...]:
+    """``(px (N, 2) float32, xy (N, 2), P_cam (N, 3), desc (N, 32) uint8, octave (N,) uint8)`` of evenly spread
     ORB keypoints with a depth reading (verification needs 3-D points; far texture without
     depth would only crowd the matches: from a metre away the far end of a corridor
     looks the same and matches best)."""
-    orb = cv2.ORB_create(nfeatures=3 * config.orb_features, fastThreshold=config.orb_fast_threshold)
+    orb = cv2.ORB_create(nfeatures=3 * config.orb_features, scaleFactor=ORB_SCALE,
+                         fastThreshold=config.orb_fast_threshold)
     kps = orb.detect(gray, None)
     if kps:
         px = np.array([k.pt for k in kps], np.float32)
@@ -121,10 +129,12 @@ def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, conf
         kps = [k for k, ok in zip(kps, np.isfinite(P[:, 2])) if ok]
     kps, desc = orb.compute(gray, _grid_select(kps, gray.shape, config))
     if desc is None or not kps:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8)
+        return (np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),
+                np.zeros(0, np.uint8))
     px = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
     xy = undistort(px, intrinsics)
-    return px, xy, lift(px, xy, depth, *lift_args), desc
+    octave = np.array([k.octave for k in kps], np.uint8)
+    return px, xy, lift(px, xy, depth, *lift_args), desc, octave
 
 
 def make_keyframe(index: int, stamp: float, gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics,
@@ -143,10 +153,10 @@ def make_keyframe(index: int, stamp: float, gray: np.ndarray, depth: np.ndarray,
         raise ValueError(f"make_keyframe needs gray (H, W) uint8 and depth of the same shape, got "
                          f"{gray.shape} {gray.dtype} and {depth.shape}")
     depth = np.nan_to_num(depth.astype(np.float32, copy=False), nan=0.0)
-    px, xy, P_cam, desc = _orb(gray, depth, intrinsics, config, (feature_config or FeatureConfig(), depth_range))
+    px, xy, P_cam, desc, octave = _orb(gray, depth, intrinsics, config, (feature_config or FeatureConfig(), depth_range))
     x_lev, P_lev = levelled_features(FeatureSet(px=px, xy=xy, P_cam=P_cam), np.asarray(R_lev_cam, float))
     return Keyframe(int(index), float(stamp), desc, px, x_lev, P_lev, list(manhattan), bag_of_words(desc, config),
-                    float(intrinsics.fx))
+                    float(intrinsics.fx), octave)
 
 
 # ----------------------------------------------------------------- place recognition
@@ -275,14 +285,15 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np
     return m[first, :2].astype(np.int64)
 
 
-def _point_cov(P: np.ndarray, config: PlaceConfig, focal: float) -> tuple[np.ndarray, ...]:
-    """Noise of levelled points (N, 3): horizontal (x, z) covariance entries ``(cxx, cxz,
-    czz)`` and the vertical variance, each (N,). A point is ``(u Z, v Z, Z)``: depth noise
-    ``sigma_Z`` lies along the ray, the pixel noise ``pixel_sigma / f * Z`` across it."""
+def _point_cov(P: np.ndarray, octave: np.ndarray, config: PlaceConfig, focal: float) -> tuple[np.ndarray, ...]:
+    """Noise of levelled points (N, 3) found at pyramid levels ``octave`` (N,): horizontal
+    (x, z) covariance entries ``(cxx, cxz, czz)`` and the vertical variance, each (N,). A
+    point is ``(u Z, v Z, Z)``: depth noise ``sigma_Z`` lies along the ray, the keypoint's
+    position noise ``pixel_sigma * 1.2^octave / f * Z`` across it."""
     Z = P[:, 2]
     u, v = P[:, 0] / Z, P[:, 1] / Z
     sz2 = (config.depth_sigma_const + config.depth_sigma_quad * Z * Z) ** 2
-    pix2 = (config.pixel_sigma / focal) ** 2 * Z * Z
+    pix2 = (config.pixel_sigma * ORB_SCALE ** octave.astype(float) / focal) ** 2 * Z * Z
     return u * u * sz2 + pix2, u * sz2, sz2, v * v * sz2 + pix2
 
 
@@ -394,10 +405,17 @@ def _fit_covariance(A: np.ndarray, chi2: float, n: int, yaw_var: float | None = 
 
 
 def _spread(Q: np.ndarray) -> float:
-    """Std (m) of horizontal points (M, 2) along their weaker principal axis."""
-    if len(Q) < 3:
+    """Width (m) of horizontal points (M, 2) in their narrowest direction, robustly: the
+    smallest, over 12 directions, of the 20-80 % interquantile range of the projections
+    over 1.683 (a Gaussian's std). A repeated door's consensus with a few stray points on
+    the other wall (skirting-board corners, which match anywhere along a wall) had a std
+    of 0.27-0.3 m; this ignores up to a fifth of the points on either side."""
+    if len(Q) < 5:
         return 0.0
-    return float(math.sqrt(max(np.linalg.eigvalsh(np.cov(Q.T))[0], 0.0)))
+    ang = np.arange(12) * (math.pi / 12)
+    proj = Q @ np.stack([np.cos(ang), np.sin(ang)])                      # (M, 12)
+    q20, q80 = np.percentile(proj, [20.0, 80.0], axis=0)
+    return float((q80 - q20).min() / 1.683)
 
 
 def _manhattan_yaw(a: Keyframe, b: Keyframe, yaw_pts: float, var_pts: float, config: PlaceConfig):
@@ -427,6 +445,21 @@ def _valid(P: np.ndarray) -> np.ndarray:
         return np.flatnonzero(np.isfinite(P).all(1) & (P[:, 2] > 0))
 
 
+def _octaves(kf: Keyframe) -> np.ndarray:
+    """``kf.octave``, or level 0 for every keypoint of a keyframe made without it."""
+    return kf.octave if len(kf.octave) == len(kf.desc) else np.zeros(len(kf.desc), np.uint8)
+
+
+def _closure_yaw(yaw_pts: float, var_pts: float, yaw_mf: float, var_mf: float, how: str):
+    """The closure's yaw, its variance and source when the Manhattan yaw agrees with the
+    points': ``"manhattan"`` takes eq. 1 alone (direction-plus-point), ``"fused"`` the
+    inverse-variance mean of the two (independent: walls against matched points)."""
+    if how == "manhattan":
+        return yaw_mf, var_mf, "manhattan"
+    d = float(geometry.wrap_angle(yaw_mf - yaw_pts))
+    return yaw_pts + d * var_pts / (var_pts + var_mf), var_pts * var_mf / (var_pts + var_mf), "fused"
+
+
 def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
     """Descriptor matches between points with depth whose levelled heights agree (a planar
     motion keeps them, so most wrong matches fail here before any model):
@@ -438,7 +471,8 @@ def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
     m = match_descriptors(a.desc[fa], b.desc[fb], config)
     pairs = np.column_stack([fa[m[:, 0]], fb[m[:, 1]]])
     P1, P2 = a.P_lev[pairs[:, 0]], b.P_lev[pairs[:, 1]]
-    c1, c2 = _point_cov(P1, config, a.focal_px), _point_cov(P2, config, b.focal_px)
+    c1 = _point_cov(P1, _octaves(a)[pairs[:, 0]], config, a.focal_px)
+    c2 = _point_cov(P2, _octaves(b)[pairs[:, 1]], config, b.focal_px)
     d2_y = (P2[:, 1] - P1[:, 1]) ** 2 / (c1[3] + c2[3] + 2 * config.height_sigma_m ** 2)
     keep = d2_y < config.chi2
     return (pairs[keep], P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]),
@@ -473,10 +507,10 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     mf = _manhattan_yaw(a, b, yaw, float(cov[0, 0]), config)
     if mf is not None and mf[0] == "mismatch":
         return ClosureCheck(False, MANHATTAN_MISMATCH, None, None, yaw_source="manhattan", **out)
-    if mf is not None and config.yaw_from == "manhattan":
-        yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, mf[1], t, inl, config, fixed_yaw=True)
-        cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=mf[2] ** 2)
-        source = "manhattan"
+    if mf is not None and config.yaw_from != "points":
+        yaw_fix, yaw_var, source = _closure_yaw(yaw, float(cov[0, 0]), mf[1], mf[2] ** 2, config.yaw_from)
+        yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, yaw_fix, t, inl, config, fixed_yaw=True)
+        cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=yaw_var)
         out["inliers"], out["inlier_pairs"] = int(inl.sum()), pairs[inl]
     t3 = np.array([t[0], 0.0, t[1]])
     pose, cov_b = lev_motion_to_base_step(float(geometry.wrap_angle(yaw)), t3, cov, geometry.mount_se2(T_base_cam))
