@@ -147,3 +147,40 @@ def test_config_is_validated():
         PlaceConfig(hash_bits=40)
     with pytest.raises(ConfigError, match="places.min_spread_m"):
         PlaceConfig(min_spread_m=0.0)
+
+
+def test_place_index_ranks_near_copies_first_across_merges():
+    """Random descriptors, every fifth keyframe a near copy (a few bits flipped) of one
+    added earlier: the copy's original is ranked first, also after the index's runs merged."""
+    from planar_vo.frontend.places import bag_of_words
+    rng = np.random.default_rng(7)
+    index, descs, hits = PlaceIndex(CONFIG), [], []
+    for i in range(60):
+        if i % 5 == 4:
+            d = descs[i - 4 - 5 * (i // 20)].copy()
+            d[:, rng.integers(0, 32)] ^= np.uint8(1 << int(rng.integers(0, 8)))
+        else:
+            d = rng.integers(0, 256, (800, 32), dtype=np.uint8)
+        descs.append(d)
+        kf = Keyframe(i, 0.0, d, np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), [],
+                      bag_of_words(d, CONFIG))
+        ranked = index.query(kf, max_index=i - 2, k=2)
+        if i % 5 == 4:
+            hits.append(ranked[0][0] == i - 4 - 5 * (i // 20))
+        assert all(index.frame_index(p) <= i - 2 for p, _ in ranked)
+        index.add(kf)
+    assert len(index) == 60 and all(hits) and len(hits) == 12
+    assert len(index._runs[0][0]) > 0   # the recent run was merged at least once
+
+
+def test_empty_keyframe_is_handled():
+    from planar_vo.core.types import CameraIntrinsics
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    kf = make_keyframe(0, 0.0, np.zeros((48, 64), np.uint8), np.zeros((48, 64), np.float32), K, np.eye(3), [],
+                       CONFIG)
+    assert kf.desc.shape == (0, 32) and kf.P_lev.shape == (0, 3) and len(kf.words) == 0
+    index = PlaceIndex(CONFIG)
+    index.add(kf)
+    assert index.query(kf, max_index=5, k=3) == []
+    c = verify_closure(kf, kf, np.eye(4), CONFIG)
+    assert not c.accepted and c.reason == "few_matches"

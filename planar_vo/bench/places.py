@@ -130,7 +130,7 @@ def _run_seed(seed: int, args, config, out: dict) -> None:
         out["closed"] += bool(truth) and closed
         index.add(kf)
     out["bytes_keyframe"].append(float(np.mean([k.nbytes for k in kfs])))
-    out["bytes_index_per_keyframe"].append((index._words.nbytes + index._pos.nbytes) / max(len(index), 1))
+    out["bytes_index_per_keyframe"].append(index.nbytes / max(len(index), 1))
 
 
 def _report(out: dict, args) -> None:
