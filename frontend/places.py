@@ -13,21 +13,22 @@ with high probability, two unrelated ones almost never; every bucket is a word. 
 are weighted by their inverse document frequency over the keyframes indexed so far
 (tf-idf with binary term frequency), so texture every keyframe sees -- and the repeated
 doors and posters of a building, as they recur -- weighs less as the run goes. The index
-is two sorted arrays (word, keyframe position), 8 bytes per word of a keyframe.
+is sorted arrays of (word, keyframe position), 8 bytes per word of a keyframe.
 
 Verification (:func:`verify_closure`) uses the paper's own geometry (Sec. 2): descriptor
-matches passing a ratio test and mutual, lifted to 3-D in the levelled frames, where a
-planar motion ``X_b = R_y(yaw) X_a + t`` keeps each point's height -- a free test of
-every match before any model. A planar 2-point RANSAC on the 3-D points (yaw from the
-direction between the two points, ``t`` from their mean), scored by the Mahalanobis
-distance under the depth and pixel noise model, then Gauss-Newton over the inliers gives
-``(yaw, t)`` and its covariance (``(J^T J)^-1`` times the reduced chi-square, at least 1).
-When both keyframes see a local Manhattan frame the yaw is the difference of the two
-headings (eq. 1; the 90-degree ambiguity resolved by the points' yaw, a disagreement
-beyond a few sigmas rejected) and the translation is refitted at that yaw (eq. 2 over
-the inliers): direction-plus-point. A closure is accepted only with enough inliers,
-spread in both horizontal directions (not one poster, not one wall: a repeated poster or
-door at another place gives a consistent transform whose inliers all lie on it).
+matches passing a ratio test, lifted to 3-D in the levelled frames, where a planar motion
+``X_b = R_y(yaw) X_a + t`` keeps each point's height -- a test of every match before any
+model. A planar 2-point RANSAC on the 3-D points (yaw from the direction between the two
+points, ``t`` from their mean), scored by the Mahalanobis distance under the depth and
+pixel noise model, then Gauss-Newton over the inliers gives ``(yaw, t)`` and its
+covariance (``(J^T J)^-1`` times the reduced chi-square, at least 1). When both
+keyframes see a local Manhattan frame, the difference of the two headings (eq. 1; the
+90-degree ambiguity resolved by the points' yaw) must agree with the points' yaw within
+a few sigmas; the yaw is then taken from it (``yaw_from``: alone, the paper's
+direction-plus-point, or fused with the points' yaw) and the translation refitted at that
+yaw (eq. 2 over the inliers). A closure is accepted only with enough inliers, spread in
+both horizontal directions (not one poster, not one wall: a repeated poster or door at
+another place gives a consistent transform whose inliers all lie on it).
 """
 from __future__ import annotations
 
@@ -265,8 +266,11 @@ class ClosureCheck:
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
     ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``). ``spread_m``: std of the
-    inliers' horizontal positions along their weaker principal axis. ``yaw_source``:
-    ``"manhattan"`` (direction-plus-point) or ``"2pt"`` (the points alone).
+    inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
+    ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
+    or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
+    ``information``; ``lev_motion``: the levelled motion; ``inlier_pairs``: the inliers'
+    keypoint indices (for drawing or checks).
     """
 
     accepted: bool

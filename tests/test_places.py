@@ -29,6 +29,13 @@ class Shooter:
         self.K, self.mount = synth.synth_intrinsics(cfg), synth.synth_mount(cfg)
         self.n = 0
 
+    def cached(self, pose) -> Keyframe:
+        """:meth:`keyframe`, rendered once per pose for the module."""
+        self._cache = getattr(self, "_cache", {})
+        if pose not in self._cache:
+            self._cache[pose] = self.keyframe(pose)
+        return self._cache[pose]
+
     def keyframe(self, pose) -> Keyframe:
         f = self.renderer.render(np.asarray(pose, float), index=self.n)
         self.n += 1
@@ -64,7 +71,7 @@ REVISITS = {  # first-pass keyframe -> second-pass pose: lateral offsets, headin
 
 
 def test_true_pairs_within_5cm_and_half_a_degree(corridor):
-    pairs = [(corridor.first[x], corridor.keyframe(p)) for x, p in REVISITS.items()]
+    pairs = [(corridor.first[x], corridor.cached(p)) for x, p in REVISITS.items()]
     pairs.append((corridor.first[4], corridor.first[5]))
     normalised = []
     for a, b in pairs:
@@ -90,6 +97,22 @@ def test_sign_convention_against_ground_truth(corridor):
     back = verify_closure(b, a, corridor.mount.T_base_cam, CONFIG)
     assert back.accepted
     np.testing.assert_allclose(geometry.se2_compose(c.pose, back.pose), 0.0, atol=0.02)
+
+
+def test_manhattan_yaw_modes_and_mismatch(corridor):
+    """The yaw from eq. 1 alone (direction-plus-point) is also within tolerance; a Manhattan
+    observation 5 deg off (a wrong association) rejects the pair."""
+    from dataclasses import replace
+    a, b = corridor.first[3], corridor.cached(REVISITS[3])
+    assert a.manhattan and b.manhattan
+    for how, source in (("manhattan", "manhattan"), ("fused", "fused"), ("points", "2pt")):
+        c = verify_closure(a, b, corridor.mount.T_base_cam, PlaceConfig(yaw_from=how))
+        assert c.accepted and c.yaw_source == source
+        e = _error(c, a, b)
+        assert math.hypot(e[0], e[1]) < 0.05 and abs(math.degrees(e[2])) < 0.5, (how, e)
+    bad = replace(b, manhattan=[replace(o, yaw=o.yaw + math.radians(5)) for o in b.manhattan])
+    c = verify_closure(a, bad, corridor.mount.T_base_cam, CONFIG)
+    assert not c.accepted and c.reason == "manhattan_mismatch"
 
 
 def test_unrelated_places_are_rejected(corridor):
