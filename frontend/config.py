@@ -243,6 +243,9 @@ class PlaceConfig:
     on the tuning rings 0.14 / 0.31 / 0.16 deg). The points' yaw is independent of the
     Manhattan factors the graph already holds; the Manhattan yaw is not. ``min_sigma_xy`` / ``min_sigma_theta_deg``: floors
     on the closure's stated sigmas (what the residuals cannot see: calibration, levelling).
+    ``prior_gate_chi2``: with the graph's prediction of the relative pose given to
+    ``verify_closure(prior=...)``, closures beyond this chi-square (3 dof; 16.27 is 99.9 %)
+    are rejected.
     """
 
     orb_features: int = 1000
@@ -272,9 +275,11 @@ class PlaceConfig:
     manhattan_min_score: float = 0.05
     min_sigma_xy: float = 0.005
     min_sigma_theta_deg: float = 0.05
+    prior_gate_chi2: float = 16.27
 
     def __post_init__(self) -> None:
-        _positive("places", orb_features=self.orb_features, grid_cols=self.grid_cols, grid_rows=self.grid_rows,
+        _positive("places", prior_gate_chi2=self.prior_gate_chi2, orb_features=self.orb_features,
+                  grid_cols=self.grid_cols, grid_rows=self.grid_rows,
                   hash_tables=self.hash_tables, ratio=self.ratio, max_hamming=self.max_hamming,
                   min_inliers=self.min_inliers, min_spread_m=self.min_spread_m,
                   min_spread_many_m=self.min_spread_many_m, many_inliers=self.many_inliers,

@@ -56,6 +56,7 @@ NO_SOLUTION = "no_solution"
 FEW_INLIERS = "few_inliers"
 POOR_SPREAD = "poor_spread"
 MANHATTAN_MISMATCH = "manhattan_mismatch"
+PRIOR_MISMATCH = "prior_mismatch"
 
 
 @dataclass
@@ -265,7 +266,7 @@ class ClosureCheck:
     ``pose``: (3,) float64 SE(2) ``T_base_a_base_b`` ``(x, y, theta)`` (base_link, REP 103)
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
-    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``). ``spread_m``: std of the
+    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``). ``spread_m``: std of the
     inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
     ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
     or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
@@ -496,13 +497,28 @@ def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
             d2_y[keep], len(m))
 
 
+def _prior_mismatch(pose: np.ndarray, cov: np.ndarray, prior, config: PlaceConfig) -> bool:
+    """True when the closure's pose is beyond ``prior_gate_chi2`` (3 dof) of ``prior``
+    ``(pose (3,), covariance (3, 3))``, both covariances combined."""
+    if prior is None:
+        return False
+    d = np.asarray(pose, float) - np.asarray(prior[0], float)
+    d[2] = float(geometry.wrap_angle(d[2]))
+    S = np.asarray(prior[1], float) + cov
+    return float(d @ np.linalg.solve(S, d)) > config.prior_gate_chi2
+
+
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
-                   seed: int = 0) -> ClosureCheck:
+                   seed: int = 0, prior: tuple[np.ndarray, np.ndarray] | None = None) -> ClosureCheck:
     """Geometric verification of a loop-closure candidate: the planar motion from ``a`` to
     ``b`` (module docstring), as ``T_base_a_base_b`` with an information matrix from the fit.
 
     ``T_base_cam``: (4, 4) the camera mount (its planar part converts the levelled-camera
-    motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC.
+    motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC. ``prior``:
+    optionally the graph's prediction of ``T_base_a_base_b`` and its (3, 3) covariance (the
+    joint marginal of the two poses); a closure beyond ``prior_gate_chi2`` of it is
+    rejected (``prior_mismatch``): what geometry cannot tell -- a place that looks the same
+    and is elsewhere -- the trajectory can.
     """
     pairs, P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
     if len(P1) < config.min_matches:
@@ -533,5 +549,7 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     pose, cov_b = lev_motion_to_base_step(float(geometry.wrap_angle(yaw)), t3, cov, geometry.mount_se2(T_base_cam))
     cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([config.min_sigma_xy ** 2, config.min_sigma_xy ** 2,
                                                math.radians(config.min_sigma_theta_deg) ** 2])
+    if _prior_mismatch(pose, cov_b, prior, config):
+        return ClosureCheck(False, PRIOR_MISMATCH, None, None, yaw_source=source, **out)
     return ClosureCheck(True, ACCEPTED, pose, np.linalg.inv(cov_b), yaw_source=source, covariance=cov_b,
                         lev_motion=(float(geometry.wrap_angle(yaw)), t3), **out)

@@ -115,6 +115,18 @@ def test_manhattan_yaw_modes_and_mismatch(corridor):
     assert not c.accepted and c.reason == "manhattan_mismatch"
 
 
+def test_prior_from_the_graph_gates_the_closure(corridor):
+    """A prediction of the relative pose (as the graph would give) near the truth keeps the
+    closure; one a texture period away (a look-alike place elsewhere) rejects it."""
+    a, b = corridor.first[3], corridor.cached(REVISITS[3])
+    gt = geometry.se2_between(a.gt, b.gt)
+    cov = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
+    near = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [0.03, -0.02, 0.005], cov))
+    assert near.accepted
+    far = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [10.24, 0.0, 0.0], cov))
+    assert not far.accepted and far.reason == "prior_mismatch" and far.pose is None
+
+
 def test_unrelated_places_are_rejected(corridor):
     f = corridor.first
     for a, b in ((f[1], f[8]), (f[3], f[10]), (f[2], f[6]),
