@@ -520,6 +520,14 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     rejected (``prior_mismatch``): what geometry cannot tell -- a place that looks the same
     and is elsewhere -- the trajectory can.
     """
+    try:
+        return _verify(a, b, T_base_cam, config, seed, prior)
+    except np.linalg.LinAlgError:  # degenerate inliers (e.g. all at one point): no motion
+        return ClosureCheck(False, NO_SOLUTION, None, None)
+
+
+def _verify(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig, seed: int, prior) -> ClosureCheck:
+    """:func:`verify_closure`'s work (linear algebra errors are its caller's)."""
     pairs, P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
     if len(P1) < config.min_matches:
         return ClosureCheck(False, FEW_MATCHES, None, None, matches=n_matches)
