@@ -6,7 +6,8 @@ only, never ``io``): ``config.py`` settings; ``levelling.py`` mount pitch/roll/h
 ``planes.py`` inverse-depth histogram planes; ``manhattan.py`` local Manhattan frames;
 ``features.py`` KLT/ORB tracking; ``solvers.py`` minimal solvers; ``estimators.py`` robust
 estimators (PoseLib-shaped 2-point RANSAC, direction-plus-point); ``planarity.py`` 6-DoF
-check; ``odometry.py`` ``PlanarOdometry``, one :class:`~planar_vo.core.steps.FrameResult` per frame.
+check; ``odometry.py`` ``PlanarOdometry``, one :class:`~planar_vo.core.steps.FrameResult` per frame;
+``places.py`` loop-closure keyframes, place recognition and verification.
 
 Public names are imported lazily so that light users (types only) stay light.
 """
@@ -22,6 +23,12 @@ _EXPORTS = {
     "ManhattanObservation": "planar_vo.core.steps",
     "Step": "planar_vo.core.steps",
     "FrameResult": "planar_vo.core.steps",
+    "PlaceConfig": "planar_vo.frontend.config",
+    "Keyframe": "planar_vo.frontend.places",
+    "make_keyframe": "planar_vo.frontend.places",
+    "PlaceIndex": "planar_vo.frontend.places",
+    "ClosureCheck": "planar_vo.frontend.places",
+    "verify_closure": "planar_vo.frontend.places",
 }
 
 __all__ = sorted(_EXPORTS)

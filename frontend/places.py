@@ -13,21 +13,22 @@ with high probability, two unrelated ones almost never; every bucket is a word. 
 are weighted by their inverse document frequency over the keyframes indexed so far
 (tf-idf with binary term frequency), so texture every keyframe sees -- and the repeated
 doors and posters of a building, as they recur -- weighs less as the run goes. The index
-is two sorted arrays (word, keyframe position), 8 bytes per word of a keyframe.
+is sorted arrays of (word, keyframe position), 8 bytes per word of a keyframe.
 
 Verification (:func:`verify_closure`) uses the paper's own geometry (Sec. 2): descriptor
-matches passing a ratio test and mutual, lifted to 3-D in the levelled frames, where a
-planar motion ``X_b = R_y(yaw) X_a + t`` keeps each point's height -- a free test of
-every match before any model. A planar 2-point RANSAC on the 3-D points (yaw from the
-direction between the two points, ``t`` from their mean), scored by the Mahalanobis
-distance under the depth and pixel noise model, then Gauss-Newton over the inliers gives
-``(yaw, t)`` and its covariance (``(J^T J)^-1`` times the reduced chi-square, at least 1).
-When both keyframes see a local Manhattan frame the yaw is the difference of the two
-headings (eq. 1; the 90-degree ambiguity resolved by the points' yaw, a disagreement
-beyond a few sigmas rejected) and the translation is refitted at that yaw (eq. 2 over
-the inliers): direction-plus-point. A closure is accepted only with enough inliers,
-spread in both horizontal directions (not one poster, not one wall: a repeated poster or
-door at another place gives a consistent transform whose inliers all lie on it).
+matches passing a ratio test, lifted to 3-D in the levelled frames, where a planar motion
+``X_b = R_y(yaw) X_a + t`` keeps each point's height -- a test of every match before any
+model. A planar 2-point RANSAC on the 3-D points (yaw from the direction between the two
+points, ``t`` from their mean), scored by the Mahalanobis distance under the depth and
+pixel noise model, then Gauss-Newton over the inliers gives ``(yaw, t)`` and its
+covariance (``(J^T J)^-1`` times the reduced chi-square, at least 1). When both
+keyframes see a local Manhattan frame, the difference of the two headings (eq. 1; the
+90-degree ambiguity resolved by the points' yaw) must agree with the points' yaw within
+a few sigmas; the yaw is then taken from it (``yaw_from``: alone, the paper's
+direction-plus-point, or fused with the points' yaw) and the translation refitted at that
+yaw (eq. 2 over the inliers). A closure is accepted only with enough inliers, spread in
+both horizontal directions (not one poster, not one wall: a repeated poster or door at
+another place gives a consistent transform whose inliers all lie on it).
 """
 from __future__ import annotations
 
@@ -55,6 +56,7 @@ NO_SOLUTION = "no_solution"
 FEW_INLIERS = "few_inliers"
 POOR_SPREAD = "poor_spread"
 MANHATTAN_MISMATCH = "manhattan_mismatch"
+PRIOR_MISMATCH = "prior_mismatch"
 
 
 @dataclass
@@ -66,7 +68,9 @@ class Keyframe:
     float64 levelled normalised coordinates (NaN behind the camera); ``P_lev``: (N, 3)
     float64 levelled points (metres), NaN rows without depth; ``manhattan``: the frame's
     ManhattanObservation list (yaw relative to base_link). ``words``: (W,) int32 sorted
-    bag-of-words ids (:func:`bag_of_words`); ``focal_px``: the camera's fx.
+    bag-of-words ids (:func:`bag_of_words`); ``focal_px``: the camera's fx; ``octave``:
+    (N,) uint8 the pyramid level each keypoint was found at (its position error grows with
+    the level's scale).
     """
 
     index: int
@@ -78,11 +82,12 @@ class Keyframe:
     manhattan: list
     words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     focal_px: float = 525.0  # the camera's focal length (pixel noise to normalised units)
+    octave: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))  # (N,) ORB pyramid level
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the arrays."""
-        return sum(a.nbytes for a in (self.desc, self.px, self.xy_lev, self.P_lev, self.words))
+        return sum(a.nbytes for a in (self.desc, self.px, self.xy_lev, self.P_lev, self.words, self.octave))
 
 
 # ------------------------------------------------------------------------ keyframes
@@ -107,13 +112,18 @@ def _grid_select(kps, shape: tuple[int, int], config: PlaceConfig) -> list:
     return [kps[i] for i in keep]
 
 
+#: ORB's pyramid scale factor (OpenCV's default, stated so the noise model can use it).
+ORB_SCALE = 1.2
+
+
 def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, config: PlaceConfig,
-         lift_args: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(px (N, 2) float32, xy (N, 2), P_cam (N, 3), desc (N, 32) uint8)`` of evenly spread
+         lift_args: tuple) -> tuple[np.ndarray, ...]:
+    """``(px (N, 2) float32, xy (N, 2), P_cam (N, 3), desc (N, 32) uint8, octave (N,) uint8)`` of evenly spread
     ORB keypoints with a depth reading (verification needs 3-D points; far texture without
     depth would only crowd the matches: from a metre away the far end of a corridor
     looks the same and matches best)."""
-    orb = cv2.ORB_create(nfeatures=3 * config.orb_features, fastThreshold=config.orb_fast_threshold)
+    orb = cv2.ORB_create(nfeatures=3 * config.orb_features, scaleFactor=ORB_SCALE,
+                         fastThreshold=config.orb_fast_threshold)
     kps = orb.detect(gray, None)
     if kps:
         px = np.array([k.pt for k in kps], np.float32)
@@ -121,10 +131,12 @@ def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, conf
         kps = [k for k, ok in zip(kps, np.isfinite(P[:, 2])) if ok]
     kps, desc = orb.compute(gray, _grid_select(kps, gray.shape, config))
     if desc is None or not kps:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8)
+        return (np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),
+                np.zeros(0, np.uint8))
     px = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
     xy = undistort(px, intrinsics)
-    return px, xy, lift(px, xy, depth, *lift_args), desc
+    octave = np.array([k.octave for k in kps], np.uint8)
+    return px, xy, lift(px, xy, depth, *lift_args), desc, octave
 
 
 def make_keyframe(index: int, stamp: float, gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics,
@@ -143,10 +155,10 @@ def make_keyframe(index: int, stamp: float, gray: np.ndarray, depth: np.ndarray,
         raise ValueError(f"make_keyframe needs gray (H, W) uint8 and depth of the same shape, got "
                          f"{gray.shape} {gray.dtype} and {depth.shape}")
     depth = np.nan_to_num(depth.astype(np.float32, copy=False), nan=0.0)
-    px, xy, P_cam, desc = _orb(gray, depth, intrinsics, config, (feature_config or FeatureConfig(), depth_range))
+    px, xy, P_cam, desc, octave = _orb(gray, depth, intrinsics, config, (feature_config or FeatureConfig(), depth_range))
     x_lev, P_lev = levelled_features(FeatureSet(px=px, xy=xy, P_cam=P_cam), np.asarray(R_lev_cam, float))
     return Keyframe(int(index), float(stamp), desc, px, x_lev, P_lev, list(manhattan), bag_of_words(desc, config),
-                    float(intrinsics.fx))
+                    float(intrinsics.fx), octave)
 
 
 # ----------------------------------------------------------------- place recognition
@@ -175,30 +187,44 @@ class PlaceIndex:
     """Inverted index of keyframes' words, scored by tf-idf (binary term frequency).
 
     :meth:`add` keyframes in order; :meth:`query` ranks the earlier ones by appearance.
-    The postings are two sorted arrays (word id, keyframe position), merged on each add
-    (one linear pass: ~2 ms at 300 keyframes).
+    The postings (word id, keyframe position) are kept in two sorted runs: recent
+    keyframes are inserted into a small one, merged into the large one when it reaches
+    an eighth of its size, so an add costs a pass over the small run, not the whole index
+    (8 bytes per word of a keyframe, ~60 kB a keyframe at the defaults).
     """
 
     def __init__(self, config: PlaceConfig):
         self.config = config
-        self._words = np.zeros(0, np.int32)     # sorted word ids of all postings
-        self._pos = np.zeros(0, np.int32)       # keyframe position of each posting
+        empty = (np.zeros(0, np.int32), np.zeros(0, np.int32))
+        self._runs = [empty, empty]             # (sorted word ids, keyframe positions): large, recent
         self._sizes: list[int] = []             # words per keyframe
         self._frame_index: list[int] = []       # Keyframe.index per position
 
     def __len__(self) -> int:
         return len(self._sizes)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the postings."""
+        return sum(w.nbytes + p.nbytes for w, p in self._runs)
+
     def frame_index(self, position: int) -> int:
         """``Keyframe.index`` of the keyframe added at ``position``."""
         return self._frame_index[position]
 
+    @staticmethod
+    def _insert(run, words: np.ndarray, pos: np.ndarray):
+        at = np.searchsorted(run[0], words)
+        return np.insert(run[0], at, words), np.insert(run[1], at, pos)
+
     def add(self, kf: Keyframe) -> None:
         """Index ``kf`` at the next position."""
         words = kf.words if len(kf.words) or not len(kf.desc) else bag_of_words(kf.desc, self.config)
-        at = np.searchsorted(self._words, words)
-        self._words = np.insert(self._words, at, words)
-        self._pos = np.insert(self._pos, at, np.int32(len(self._sizes)))
+        big, small = self._runs
+        small = self._insert(small, words, np.full(len(words), len(self._sizes), np.int32))
+        if len(small[0]) > max(len(big[0]) // 8, 1 << 16):
+            big, small = self._insert(big, *small), (np.zeros(0, np.int32), np.zeros(0, np.int32))
+        self._runs = [big, small]
         self._sizes.append(len(words))
         self._frame_index.append(int(kf.index))
 
@@ -214,17 +240,16 @@ class PlaceIndex:
         words = kf.words if len(kf.words) or not len(kf.desc) else bag_of_words(kf.desc, self.config)
         if n == 0 or k <= 0 or len(words) == 0:
             return []
-        lo = np.searchsorted(self._words, words, side="left")
-        hi = np.searchsorted(self._words, words, side="right")
-        df = hi - lo
-        hit = df > 0
-        lo, df = lo[hit], df[hit]
-        if len(df) == 0:
-            return []
-        total = int(df.sum())
-        starts = np.repeat(lo - np.cumsum(df) + df, df) + np.arange(total)
-        idf2 = np.log((n + 1.0) / df) ** 2
-        acc = np.bincount(self._pos[starts], np.repeat(idf2, df), minlength=n)
+        spans = [(np.searchsorted(w, words, side="left"), np.searchsorted(w, words, side="right")) for w, _ in self._runs]
+        df = sum(hi - lo for lo, hi in spans)        # keyframes holding each query word
+        idf2 = np.log((n + 1.0) / np.maximum(df, 1)) ** 2
+        acc = np.zeros(n)
+        for (lo, hi), (_, pos) in zip(spans, self._runs):
+            cnt = hi - lo
+            total = int(cnt.sum())
+            if total:
+                at = np.repeat(lo - np.cumsum(cnt) + cnt, cnt) + np.arange(total)
+                acc += np.bincount(pos[at], np.repeat(idf2, cnt), minlength=n)
         sizes = np.maximum(np.asarray(self._sizes, float), 1.0)
         score = acc / (np.sqrt(sizes * len(words)) * math.log(n + 1.0) ** 2)
         score[np.asarray(self._frame_index) > max_index] = 0.0
@@ -241,9 +266,12 @@ class ClosureCheck:
     ``pose``: (3,) float64 SE(2) ``T_base_a_base_b`` ``(x, y, theta)`` (base_link, REP 103)
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
-    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``). ``spread_m``: std of the
-    inliers' horizontal positions along their weaker principal axis. ``yaw_source``:
-    ``"manhattan"`` (direction-plus-point) or ``"2pt"`` (the points alone).
+    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``). ``spread_m``: std of the
+    inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
+    ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
+    or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
+    ``information``; ``lev_motion``: the levelled motion; ``inlier_pairs``: the inliers'
+    keypoint indices (for drawing or checks).
     """
 
     accepted: bool
@@ -256,6 +284,7 @@ class ClosureCheck:
     yaw_source: str = ""
     covariance: np.ndarray | None = None   # (3, 3) base_link, the inverse of ``information``
     lev_motion: tuple | None = None        # levelled (yaw, t (3,)) with X_b = R_y(yaw) X_a + t
+    inlier_pairs: np.ndarray | None = None  # (K, 2) int64 keypoint indices [i_a, i_b] of the inliers
 
 
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np.ndarray:
@@ -274,14 +303,15 @@ def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np
     return m[first, :2].astype(np.int64)
 
 
-def _point_cov(P: np.ndarray, config: PlaceConfig, focal: float) -> tuple[np.ndarray, ...]:
-    """Noise of levelled points (N, 3): horizontal (x, z) covariance entries ``(cxx, cxz,
-    czz)`` and the vertical variance, each (N,). A point is ``(u Z, v Z, Z)``: depth noise
-    ``sigma_Z`` lies along the ray, the pixel noise ``pixel_sigma / f * Z`` across it."""
+def _point_cov(P: np.ndarray, octave: np.ndarray, config: PlaceConfig, focal: float) -> tuple[np.ndarray, ...]:
+    """Noise of levelled points (N, 3) found at pyramid levels ``octave`` (N,): horizontal
+    (x, z) covariance entries ``(cxx, cxz, czz)`` and the vertical variance, each (N,). A
+    point is ``(u Z, v Z, Z)``: depth noise ``sigma_Z`` lies along the ray, the keypoint's
+    position noise ``pixel_sigma * 1.2^octave / f * Z`` across it."""
     Z = P[:, 2]
     u, v = P[:, 0] / Z, P[:, 1] / Z
     sz2 = (config.depth_sigma_const + config.depth_sigma_quad * Z * Z) ** 2
-    pix2 = (config.pixel_sigma / focal) ** 2 * Z * Z
+    pix2 = (config.pixel_sigma * ORB_SCALE ** octave.astype(float) / focal) ** 2 * Z * Z
     return u * u * sz2 + pix2, u * sz2, sz2, v * v * sz2 + pix2
 
 
@@ -393,10 +423,17 @@ def _fit_covariance(A: np.ndarray, chi2: float, n: int, yaw_var: float | None = 
 
 
 def _spread(Q: np.ndarray) -> float:
-    """Std (m) of horizontal points (M, 2) along their weaker principal axis."""
-    if len(Q) < 3:
+    """Width (m) of horizontal points (M, 2) in their narrowest direction, robustly: the
+    smallest, over 12 directions, of the 20-80 % interquantile range of the projections
+    over 1.683 (a Gaussian's std). A repeated door's consensus with a few stray points on
+    the other wall (skirting-board corners, which match anywhere along a wall) had a std
+    of 0.27-0.3 m; this ignores up to a fifth of the points on either side."""
+    if len(Q) < 5:
         return 0.0
-    return float(math.sqrt(max(np.linalg.eigvalsh(np.cov(Q.T))[0], 0.0)))
+    ang = np.arange(12) * (math.pi / 12)
+    proj = Q @ np.stack([np.cos(ang), np.sin(ang)])                      # (M, 12)
+    q20, q80 = np.percentile(proj, [20.0, 80.0], axis=0)
+    return float((q80 - q20).min() / 1.683)
 
 
 def _manhattan_yaw(a: Keyframe, b: Keyframe, yaw_pts: float, var_pts: float, config: PlaceConfig):
@@ -426,31 +463,72 @@ def _valid(P: np.ndarray) -> np.ndarray:
         return np.flatnonzero(np.isfinite(P).all(1) & (P[:, 2] > 0))
 
 
+def _octaves(kf: Keyframe) -> np.ndarray:
+    """``kf.octave``, or level 0 for every keypoint of a keyframe made without it."""
+    return kf.octave if len(kf.octave) == len(kf.desc) else np.zeros(len(kf.desc), np.uint8)
+
+
+def _closure_yaw(yaw_pts: float, var_pts: float, yaw_mf: float, var_mf: float, how: str):
+    """The closure's yaw, its variance and source when the Manhattan yaw agrees with the
+    points': ``"manhattan"`` takes eq. 1 alone (direction-plus-point), ``"fused"`` the
+    inverse-variance mean of the two (independent: walls against matched points)."""
+    if how == "manhattan":
+        return yaw_mf, var_mf, "manhattan"
+    d = float(geometry.wrap_angle(yaw_mf - yaw_pts))
+    return yaw_pts + d * var_pts / (var_pts + var_mf), var_pts * var_mf / (var_pts + var_mf), "fused"
+
+
 def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
     """Descriptor matches between points with depth whose levelled heights agree (a planar
     motion keeps them, so most wrong matches fail here before any model):
-    ``(P1, P2, cov1, cov2, d2_y)`` of the M matches kept, ``cov`` the horizontal covariance
-    entries (:func:`_point_cov`), ``d2_y`` (M,) their vertical Mahalanobis distances, and
-    the number of descriptor matches."""
+    ``(pairs, P1, P2, cov1, cov2, d2_y)`` of the M matches kept, ``pairs`` (M, 2) their
+    keypoint indices in ``a`` and ``b``, ``cov`` the horizontal covariance entries
+    (:func:`_point_cov`), ``d2_y`` (M,) their vertical Mahalanobis distances; and the
+    number of descriptor matches."""
     fa, fb = _valid(a.P_lev), _valid(b.P_lev)
     m = match_descriptors(a.desc[fa], b.desc[fb], config)
-    P1, P2 = a.P_lev[fa][m[:, 0]], b.P_lev[fb][m[:, 1]]
-    c1, c2 = _point_cov(P1, config, a.focal_px), _point_cov(P2, config, b.focal_px)
+    pairs = np.column_stack([fa[m[:, 0]], fb[m[:, 1]]])
+    P1, P2 = a.P_lev[pairs[:, 0]], b.P_lev[pairs[:, 1]]
+    c1 = _point_cov(P1, _octaves(a)[pairs[:, 0]], config, a.focal_px)
+    c2 = _point_cov(P2, _octaves(b)[pairs[:, 1]], config, b.focal_px)
     d2_y = (P2[:, 1] - P1[:, 1]) ** 2 / (c1[3] + c2[3] + 2 * config.height_sigma_m ** 2)
     keep = d2_y < config.chi2
-    return (P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]), d2_y[keep],
-            len(m))
+    return (pairs[keep], P1[keep], P2[keep], tuple(x[keep] for x in c1[:3]), tuple(x[keep] for x in c2[:3]),
+            d2_y[keep], len(m))
+
+
+def _prior_mismatch(pose: np.ndarray, cov: np.ndarray, prior, config: PlaceConfig) -> bool:
+    """True when the closure's pose is beyond ``prior_gate_chi2`` (3 dof) of ``prior``
+    ``(pose (3,), covariance (3, 3))``, both covariances combined."""
+    if prior is None:
+        return False
+    d = np.asarray(pose, float) - np.asarray(prior[0], float)
+    d[2] = float(geometry.wrap_angle(d[2]))
+    S = np.asarray(prior[1], float) + cov
+    return float(d @ np.linalg.solve(S, d)) > config.prior_gate_chi2
 
 
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
-                   seed: int = 0) -> ClosureCheck:
+                   seed: int = 0, prior: tuple[np.ndarray, np.ndarray] | None = None) -> ClosureCheck:
     """Geometric verification of a loop-closure candidate: the planar motion from ``a`` to
     ``b`` (module docstring), as ``T_base_a_base_b`` with an information matrix from the fit.
 
     ``T_base_cam``: (4, 4) the camera mount (its planar part converts the levelled-camera
-    motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC.
+    motion to base_link, as the odometry's steps). ``seed`` seeds the RANSAC. ``prior``:
+    optionally the graph's prediction of ``T_base_a_base_b`` and its (3, 3) covariance (the
+    joint marginal of the two poses); a closure beyond ``prior_gate_chi2`` of it is
+    rejected (``prior_mismatch``): what geometry cannot tell -- a place that looks the same
+    and is elsewhere -- the trajectory can.
     """
-    P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
+    try:
+        return _verify(a, b, T_base_cam, config, seed, prior)
+    except np.linalg.LinAlgError:  # degenerate inliers (e.g. all at one point): no motion
+        return ClosureCheck(False, NO_SOLUTION, None, None)
+
+
+def _verify(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig, seed: int, prior) -> ClosureCheck:
+    """:func:`verify_closure`'s work (linear algebra errors are its caller's)."""
+    pairs, P1, P2, cov1, cov2, d2_y, n_matches = _matched_points(a, b, config)
     if len(P1) < config.min_matches:
         return ClosureCheck(False, FEW_MATCHES, None, None, matches=n_matches)
     Q1, Q2 = P1[:, [0, 2]], P2[:, [0, 2]]
@@ -460,24 +538,26 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, *hyp, config)
     n_in = int(inl.sum())
     spread = _spread(Q2[inl])
-    out = dict(matches=n_matches, inliers=n_in, spread_m=spread)
+    out = dict(matches=n_matches, inliers=n_in, spread_m=spread, inlier_pairs=pairs[inl])
     if n_in < config.min_inliers or n_in < config.min_inlier_ratio * len(P1):
         return ClosureCheck(False, FEW_INLIERS, None, None, **out)
-    if spread < config.min_spread_m:
+    if spread < (config.min_spread_many_m if n_in >= config.many_inliers else config.min_spread_m):
         return ClosureCheck(False, POOR_SPREAD, None, None, **out)
     cov = _fit_covariance(A, chi2, n_in)
     source = "2pt"
     mf = _manhattan_yaw(a, b, yaw, float(cov[0, 0]), config)
     if mf is not None and mf[0] == "mismatch":
         return ClosureCheck(False, MANHATTAN_MISMATCH, None, None, yaw_source="manhattan", **out)
-    if mf is not None:
-        yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, mf[1], t, inl, config, fixed_yaw=True)
-        cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=mf[2] ** 2)
-        source = "manhattan"
-        out["inliers"] = int(inl.sum())
+    if mf is not None and config.yaw_from != "points":
+        yaw_fix, yaw_var, source = _closure_yaw(yaw, float(cov[0, 0]), mf[1], mf[2] ** 2, config.yaw_from)
+        yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, yaw_fix, t, inl, config, fixed_yaw=True)
+        cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=yaw_var)
+        out["inliers"], out["inlier_pairs"] = int(inl.sum()), pairs[inl]
     t3 = np.array([t[0], 0.0, t[1]])
     pose, cov_b = lev_motion_to_base_step(float(geometry.wrap_angle(yaw)), t3, cov, geometry.mount_se2(T_base_cam))
     cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([config.min_sigma_xy ** 2, config.min_sigma_xy ** 2,
                                                math.radians(config.min_sigma_theta_deg) ** 2])
+    if _prior_mismatch(pose, cov_b, prior, config):
+        return ClosureCheck(False, PRIOR_MISMATCH, None, None, yaw_source=source, **out)
     return ClosureCheck(True, ACCEPTED, pose, np.linalg.inv(cov_b), yaw_source=source, covariance=cov_b,
                         lev_motion=(float(geometry.wrap_angle(yaw)), t3), **out)

@@ -29,6 +29,13 @@ class Shooter:
         self.K, self.mount = synth.synth_intrinsics(cfg), synth.synth_mount(cfg)
         self.n = 0
 
+    def cached(self, pose) -> Keyframe:
+        """:meth:`keyframe`, rendered once per pose for the module."""
+        self._cache = getattr(self, "_cache", {})
+        if pose not in self._cache:
+            self._cache[pose] = self.keyframe(pose)
+        return self._cache[pose]
+
     def keyframe(self, pose) -> Keyframe:
         f = self.renderer.render(np.asarray(pose, float), index=self.n)
         self.n += 1
@@ -64,7 +71,7 @@ REVISITS = {  # first-pass keyframe -> second-pass pose: lateral offsets, headin
 
 
 def test_true_pairs_within_5cm_and_half_a_degree(corridor):
-    pairs = [(corridor.first[x], corridor.keyframe(p)) for x, p in REVISITS.items()]
+    pairs = [(corridor.first[x], corridor.cached(p)) for x, p in REVISITS.items()]
     pairs.append((corridor.first[4], corridor.first[5]))
     normalised = []
     for a, b in pairs:
@@ -90,6 +97,34 @@ def test_sign_convention_against_ground_truth(corridor):
     back = verify_closure(b, a, corridor.mount.T_base_cam, CONFIG)
     assert back.accepted
     np.testing.assert_allclose(geometry.se2_compose(c.pose, back.pose), 0.0, atol=0.02)
+
+
+def test_manhattan_yaw_modes_and_mismatch(corridor):
+    """The yaw from eq. 1 alone (direction-plus-point) is also within tolerance; a Manhattan
+    observation 5 deg off (a wrong association) rejects the pair."""
+    from dataclasses import replace
+    a, b = corridor.first[3], corridor.cached(REVISITS[3])
+    assert a.manhattan and b.manhattan
+    for how, source in (("manhattan", "manhattan"), ("fused", "fused"), ("points", "2pt")):
+        c = verify_closure(a, b, corridor.mount.T_base_cam, PlaceConfig(yaw_from=how))
+        assert c.accepted and c.yaw_source == source
+        e = _error(c, a, b)
+        assert math.hypot(e[0], e[1]) < 0.05 and abs(math.degrees(e[2])) < 0.5, (how, e)
+    bad = replace(b, manhattan=[replace(o, yaw=o.yaw + math.radians(5)) for o in b.manhattan])
+    c = verify_closure(a, bad, corridor.mount.T_base_cam, CONFIG)
+    assert not c.accepted and c.reason == "manhattan_mismatch"
+
+
+def test_prior_from_the_graph_gates_the_closure(corridor):
+    """A prediction of the relative pose (as the graph would give) near the truth keeps the
+    closure; one a texture period away (a look-alike place elsewhere) rejects it."""
+    a, b = corridor.first[3], corridor.cached(REVISITS[3])
+    gt = geometry.se2_between(a.gt, b.gt)
+    cov = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
+    near = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [0.03, -0.02, 0.005], cov))
+    assert near.accepted
+    far = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [10.24, 0.0, 0.0], cov))
+    assert not far.accepted and far.reason == "prior_mismatch" and far.pose is None
 
 
 def test_unrelated_places_are_rejected(corridor):
@@ -147,3 +182,40 @@ def test_config_is_validated():
         PlaceConfig(hash_bits=40)
     with pytest.raises(ConfigError, match="places.min_spread_m"):
         PlaceConfig(min_spread_m=0.0)
+
+
+def test_place_index_ranks_near_copies_first_across_merges():
+    """Random descriptors, every fifth keyframe a near copy (a few bits flipped) of one
+    added earlier: the copy's original is ranked first, also after the index's runs merged."""
+    from planar_vo.frontend.places import bag_of_words
+    rng = np.random.default_rng(7)
+    index, descs, hits = PlaceIndex(CONFIG), [], []
+    for i in range(60):
+        if i % 5 == 4:
+            d = descs[i - 4 - 5 * (i // 20)].copy()
+            d[:, rng.integers(0, 32)] ^= np.uint8(1 << int(rng.integers(0, 8)))
+        else:
+            d = rng.integers(0, 256, (800, 32), dtype=np.uint8)
+        descs.append(d)
+        kf = Keyframe(i, 0.0, d, np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), [],
+                      bag_of_words(d, CONFIG))
+        ranked = index.query(kf, max_index=i - 2, k=2)
+        if i % 5 == 4:
+            hits.append(ranked[0][0] == i - 4 - 5 * (i // 20))
+        assert all(index.frame_index(p) <= i - 2 for p, _ in ranked)
+        index.add(kf)
+    assert len(index) == 60 and all(hits) and len(hits) == 12
+    assert len(index._runs[0][0]) > 0   # the recent run was merged at least once
+
+
+def test_empty_keyframe_is_handled():
+    from planar_vo.core.types import CameraIntrinsics
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    kf = make_keyframe(0, 0.0, np.zeros((48, 64), np.uint8), np.zeros((48, 64), np.float32), K, np.eye(3), [],
+                       CONFIG)
+    assert kf.desc.shape == (0, 32) and kf.P_lev.shape == (0, 3) and len(kf.words) == 0
+    index = PlaceIndex(CONFIG)
+    index.add(kf)
+    assert index.query(kf, max_index=5, k=3) == []
+    c = verify_closure(kf, kf, np.eye(4), CONFIG)
+    assert not c.accepted and c.reason == "few_matches"

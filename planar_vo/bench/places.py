@@ -108,6 +108,7 @@ def _run_seed(seed: int, args, config, out: dict) -> None:
             got = [p for p, _ in ranked]
             out["top1"] += bool(got) and got[0] in truth
             out["topk"] += any(p in truth for p in got)
+        closed = False
         for p, _score in ranked:
             t0 = time.thread_time()
             c = verify_closure(kfs[p], kf, T_bc, config, seed=q)
@@ -115,6 +116,7 @@ def _run_seed(seed: int, args, config, out: dict) -> None:
             same = _same_place(poses[p], poses[q], 1.0)
             key = ("true" if same else "false") + "_candidates"
             out[key][c.reason] = out[key].get(c.reason, 0) + 1
+            closed |= c.accepted and same
             if c.accepted:
                 gt = se2_between(poses[p], poses[q])
                 e = c.pose - gt
@@ -125,16 +127,18 @@ def _run_seed(seed: int, args, config, out: dict) -> None:
                 if math.hypot(e[0], e[1]) > 0.05 or abs(math.degrees(e[2])) > 0.5:
                     out["wrong"].append({"seed": seed, "a": p, "b": q, "error": [float(v) for v in e],
                                          "inliers": c.inliers, "spread_m": c.spread_m})
+        out["closed"] += bool(truth) and closed
         index.add(kf)
     out["bytes_keyframe"].append(float(np.mean([k.nbytes for k in kfs])))
-    out["bytes_index_per_keyframe"].append((index._words.nbytes + index._pos.nbytes) / max(len(index), 1))
+    out["bytes_index_per_keyframe"].append(index.nbytes / max(len(index), 1))
 
 
 def _report(out: dict, args) -> None:
     ms = {k: float(np.median(out[k])) if out[k] else 0.0 for k in ("ms_keyframe", "ms_query", "ms_verify")}
     n_rev = max(out["revisits"], 1)
     print(f"revisits {out['revisits']}: true keyframe ranked first {out['top1']} ({100 * out['top1'] / n_rev:.0f} %), "
-          f"within {args.k} {out['topk']} ({100 * out['topk'] / n_rev:.0f} %)")
+          f"within {args.k} {out['topk']} ({100 * out['topk'] / n_rev:.0f} %); closed (a closure accepted within 1 m) "
+          f"{out['closed']} ({100 * out['closed'] / n_rev:.0f} %)")
     print(f"candidates at the same place: {out['true_candidates']}")
     print(f"candidates at other places:  {out['false_candidates']}")
     E = np.array(out["errors"]).reshape(-1, 3)
@@ -164,7 +168,7 @@ def main(args: argparse.Namespace) -> int:
     a, _, b = args.seeds.partition("-")
     seeds = range(int(a), int(b or a) + 1)
     config = PlaceConfig()
-    out = {"revisits": 0, "top1": 0, "topk": 0, "true_candidates": {}, "false_candidates": {}, "errors": [],
+    out = {"revisits": 0, "top1": 0, "topk": 0, "closed": 0, "true_candidates": {}, "false_candidates": {}, "errors": [],
            "normalised": [], "wrong": [], "accepted_distance_m": [], "ms_keyframe": [], "ms_query": [], "ms_verify": [], "bytes_keyframe": [],
            "bytes_index_per_keyframe": []}
     for seed in seeds:
