@@ -49,7 +49,7 @@ def _check_information(information, what: str) -> np.ndarray:
 _CLOSURE_KEYS = ("id", "i", "j", "pose", "sigma", "status", "residual_sigmas", "reason")
 
 
-@dataclass
+@dataclass(eq=False)
 class _Closure:
     """One loop closure: ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information``.
 
@@ -70,6 +70,11 @@ class _Closure:
     robust: bool = False
 
 
+def _joint_block(jm, i: int, j: int) -> np.ndarray:
+    """(6, 6) covariance of ``[X(i), X(j)]`` from a ``gtsam.JointMarginal``."""
+    return np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+
+
 def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
     """(3, 3) covariance of ``T_i^-1 T_j`` from the (6, 6) joint covariance of the two
     poses (``gtsam.Pose2`` each, right-perturbed tangent ``[x, y, theta]``, i first).
@@ -81,6 +86,62 @@ def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
     jac = np.hstack([-t_ij.inverse().AdjointMap(), np.eye(3)])
     cov = jac @ joint @ jac.T
     return 0.5 * (cov + cov.T)
+
+
+def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+        cfg: BackendConfig) -> tuple[gtsam.Values, int, float]:
+    """Levenberg-Marquardt with the configured limits: ``(solution, iterations, error)``."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(cfg.lm_max_iterations)
+    params.setRelativeErrorTol(cfg.lm_relative_error_tol)
+    params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    result = opt.optimize()
+    return result, int(opt.iterations()), float(opt.error())
+
+
+def _gaussian_copy(graph: gtsam.NonlinearFactorGraph, skip: set[int]) -> gtsam.NonlinearFactorGraph:
+    """The factors of ``graph`` but those at ``skip`` (and removed ones), every robust
+    ``BetweenFactorPose2`` (steps, native Manhattan links) replaced by its Gaussian core."""
+    out = gtsam.NonlinearFactorGraph()
+    for idx in range(graph.size()):
+        f = graph.at(idx)
+        if f is None or idx in skip:
+            continue
+        if isinstance(f, gtsam.BetweenFactorPose2) and isinstance(f.noiseModel(), gtsam.noiseModel.Robust):
+            keys = f.keys()
+            f = gtsam.BetweenFactorPose2(keys[0], keys[1], f.measured(), f.noiseModel().noise())
+        out.add(f)
+    return out
+
+
+def _select_closures(builder: "_GraphBuilder", graph: gtsam.NonlinearFactorGraph, start: gtsam.Values,
+                     skip: set[int]) -> tuple[gtsam.Values, int]:
+    """Decide which active closures stay: solve ``graph`` (without the factors at ``skip``,
+    the closures already in it) plus every active closure, all Gaussian, from ``start``;
+    remove the closure with the largest Mahalanobis residual beyond
+    ``closure_max_error_sigmas``; repeat until none. Returns ``(solution, iterations)``.
+
+    All Gaussian because a robust step or Manhattan link can give way: a false closure
+    pulling metres against a chain of robust steps pushes a few of them into the kernel's
+    tail, the chain tears there and the false closure fits with a small residual. A Gaussian
+    graph cannot tear, so the false closure's residual stays large (it is one factor against
+    many) and it is removed first; a true closure bent by it recovers once it is gone.
+    """
+    gauss = _gaussian_copy(graph, skip)
+    at = {}
+    for c in builder.active_closures():
+        at[c.id] = gauss.size()
+        gauss.add(builder.closure_factor(c, robust=False))
+    iterations = 0
+    while True:
+        values, its, _ = _lm(gauss, start, builder.cfg)
+        iterations += its
+        worst = builder.judge_closures(values)
+        if worst is None:
+            return values, iterations
+        builder.remove_closure(worst, "all-Gaussian")
+        gauss.remove(at[worst.id])
 
 
 def _check_pair(i: int, j: int, n: int, what: str, where: str) -> None:
@@ -296,11 +357,21 @@ class _GraphBuilder:
         limit = self.cfg.closure_max_error_sigmas
         return worst if worst is not None and limit > 0 and worst.residual > limit else None
 
-    def remove_closure(self, c: _Closure) -> None:
+    def remove_closure(self, c: _Closure, solve: str) -> None:
+        """Mark ``c`` removed, the reason naming the ``solve`` that showed its residual."""
         n = sum(1 for o in self.closures if o.status == "active")
         c.status = "removed"
         c.reason = (f"residual {c.residual:.1f} sigma > closure_max_error_sigmas "
-                    f"{self.cfg.closure_max_error_sigmas:g} after the solve (worst of {n} active closures)")
+                    f"{self.cfg.closure_max_error_sigmas:g} after the {solve} solve (worst of {n} active closures)")
+
+    def reinstate_closures(self) -> list[_Closure]:
+        """Make every removed closure active again, to be judged afresh with all the others
+        (one judged alone, e.g. the first of a loop, may fit once later ones share its pull);
+        returns them."""
+        back = [c for c in self.closures if c.status == "removed"]
+        for c in back:
+            c.status, c.reason = "active", None
+        return back
 
     def active_closures(self) -> list[_Closure]:
         return [c for c in self.closures if c.status == "active"]
@@ -426,7 +497,6 @@ class PlanarPoseGraph:
         c = self._b.new_closure(i, j, pose, information, info)
         c.index = self._graph.size()
         self._graph.add(self._b.closure_factor(c, robust=True))
-        c.robust = True
         self._result = None
         return c.id
 
@@ -437,31 +507,25 @@ class PlanarPoseGraph:
         before any), ``reason`` (None, or why it was removed), then the caller's ``info``."""
         return self._b.closure_dicts()
 
-    def _lm(self, values: gtsam.Values) -> tuple[gtsam.Values, int, float]:
-        cfg = self.config
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(cfg.lm_max_iterations)
-        params.setRelativeErrorTol(cfg.lm_relative_error_tol)
-        params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
-        opt = gtsam.LevenbergMarquardtOptimizer(self._graph, values, params)
-        result = opt.optimize()
-        return result, int(opt.iterations()), float(opt.error())
-
     def optimize(self) -> np.ndarray:
         """Batch Levenberg-Marquardt over the whole graph; (N, 3) float64 ``T_odom_base``.
 
-        With closures: first the graph without them (Manhattan pruning included), then the
-        closures are judged against that solution (:meth:`_solve_closures`)."""
+        With closures: first the graph without them (Manhattan pruning included), then every
+        closure ever added (removed ones again too: the decision depends on the set of
+        closures, not on the order of calls) is judged against that solution
+        (:meth:`_solve_closures`)."""
         if self._b.n == 0:
             return np.zeros((0, 3))
+        cfg = self.config
         t0 = time.perf_counter()
-        closures = self._b.active_closures()
+        self._b.reinstate_closures()
+        closures = self._b.closures
         for c in closures:
             self._graph.remove(c.index)
         error_initial = float(self._graph.error(self._initial))
-        self._result, iterations, error = self._lm(self._initial)
-        if self.config.prune_sigmas > 0 and self._prune(self._result):
-            self._result, its, error = self._lm(self._result)
+        self._result, iterations, error = _lm(self._graph, self._initial, cfg)
+        if cfg.prune_sigmas > 0 and self._prune(self._result):
+            self._result, its, error = _lm(self._graph, self._result, cfg)
             iterations += its
         if closures:
             its, error = self._solve_closures(self._result)
@@ -473,33 +537,30 @@ class PlanarPoseGraph:
         return self._b.poses_from(self._result)
 
     def _solve_closures(self, start: gtsam.Values) -> tuple[int, float]:
-        """Add the active closures to the solution ``start`` (the graph without them) and
-        remove the worst one beyond ``closure_max_error_sigmas`` until none is left.
-
-        Each round solves from ``start`` twice: closures Gaussian (a pose graph from its
-        odometry is well-behaved, and at ``start`` a true closure's residual is the drift,
-        tens of sigma, where a redescending kernel would ignore it), then with the closure
-        kernel from there. Starting every round again from ``start`` means a removed false
-        closure leaves no trace (robust steps or Manhattan links it had pushed into the
-        kernel's tail are not stuck there). Returns ``(iterations, final error)``.
-        """
+        """Add the active closures to ``start``, the solution of the graph without them
+        (whose closure slots are empty): select them all-Gaussian (:func:`_select_closures`),
+        then solve with the closure kernel from the Gaussian solution; if a closure's residual
+        then exceeds ``closure_max_error_sigmas``, remove the worst and select again from
+        ``start``. Returns ``(iterations, final error)``."""
+        cfg = self.config
         iterations = 0
         while True:
+            gauss, its = _select_closures(self._b, self._graph, start, set())
+            iterations += its
             active = self._b.active_closures()
             if not active:
                 self._result = start
                 return iterations, float(self._graph.error(start))
-            for robust in (False, True):
-                for c in active:
-                    self._graph.replace(c.index, self._b.closure_factor(c, robust))
-                    c.robust = robust
-                self._result, its, error = self._lm(start if not robust else self._result)
-                iterations += its
+            for c in active:
+                self._graph.replace(c.index, self._b.closure_factor(c, robust=True))
+            self._result, its, error = _lm(self._graph, gauss, cfg)
+            iterations += its
             worst = self._b.judge_closures(self._result)
             if worst is None:
                 return iterations, error
-            self._b.remove_closure(worst)
-            self._graph.remove(worst.index)
+            self._b.remove_closure(worst, "robust")
+            for c in active:
+                self._graph.remove(c.index)
 
     def _prune(self, values: gtsam.Values) -> int:
         """Remove prunable factors beyond ``prune_sigmas`` at ``values``; a removed Manhattan
@@ -573,8 +634,7 @@ class PlanarPoseGraph:
         _check_pair(i, j, n, "relative_covariance", "of the last solution")
         if self._joint is None:
             self._joint = gtsam.Marginals(graph, values)
-        jm = self._joint.jointMarginalCovariance([X(i), X(j)])
-        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+        joint = _joint_block(self._joint.jointMarginalCovariance([X(i), X(j)]), i, j)
         return _relative_covariance(joint, values.atPose2(X(i)), values.atPose2(X(j)))
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
@@ -648,7 +708,8 @@ class IncrementalPlanarPoseGraph:
             p = self._isam.calculateEstimatePose2(X(k - 1))
             prev = np.array([p.x(), p.y(), p.theta()])
         graph, values, k = self._b.frame(result, prev, odometry)
-        if self._push(graph, values):
+        self._push(graph, values)
+        if self._new_closures:
             self._settle_closures()
         self._time += time.perf_counter() - t0
         self._updates += 1
@@ -675,23 +736,12 @@ class IncrementalPlanarPoseGraph:
         closures still queued)."""
         return self._b.closure_dicts()
 
-    def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *,
-              force: bool = False) -> bool:
-        """One iSAM2 update with ``graph``, ``values``, the queued relative factors and the
-        queued closures (Gaussian: see :meth:`_settle_closures`); returns True if closures went in."""
+    def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *, force: bool = False) -> None:
+        """One iSAM2 update with ``graph``, ``values`` and the queued relative factors."""
         if self._pending.size():
             graph.push_back(self._pending)
             self._pending = gtsam.NonlinearFactorGraph()
-        new, self._new_closures = self._new_closures, []
-        first = graph.size()
-        for c in new:
-            graph.add(self._b.closure_factor(c, robust=False))
-        res = self._isam.update(graph, values, force_relinearize=force)
-        if new:
-            idx = list(res.getNewFactorsIndices())
-            for n, c in enumerate(new):
-                c.index = int(idx[first + n])
-        return bool(new)
+        self._isam.update(graph, values, force_relinearize=force)
 
     def _passes(self) -> None:
         """Relinearisation passes until no variable moves beyond the thresholds (at most
@@ -702,38 +752,69 @@ class IncrementalPlanarPoseGraph:
             if res.getVariablesRelinearized() == 0:
                 break
 
+    def _swap(self, add: list[_Closure], drop: list[_Closure], robust: bool) -> None:
+        """One iSAM2 update that adds ``add`` (closure kernel if ``robust``, else Gaussian)
+        and removes the factors of ``drop`` (by the indices iSAM2 gave them)."""
+        g = gtsam.NonlinearFactorGraph()
+        for c in add:
+            g.add(self._b.closure_factor(c, robust))
+        res = self._isam.update(g, gtsam.Values(), [c.index for c in drop])
+        for c in drop:
+            c.index = None
+        for c, idx in zip(add, res.getNewFactorsIndices()):
+            c.index, c.robust = int(idx), robust
+        self._updates += 1
+
     def _settle_closures(self) -> None:
-        """Converge, make the Gaussian closures robust, converge, and remove the worst active
-        closure beyond ``closure_max_error_sigmas`` until none is left (as the batch graph:
-        closures enter Gaussian because at the drifted estimate a true closure's residual is
-        tens of sigma, where the redescending kernel would hardly pull)."""
+        """Judge the queued and active closures as the batch graph does: select them on an
+        all-Gaussian copy of iSAM2's factors from its current estimate
+        (:func:`_select_closures`); then in iSAM2 remove the rejected, add the accepted new
+        ones Gaussian, converge, give them the closure kernel (at the drifted estimate a
+        true closure's residual is tens of sigma, where that kernel would hardly pull),
+        converge; if a residual is then beyond ``closure_max_error_sigmas``, remove the
+        worst and start again.
+
+        The selection (a Levenberg-Marquardt solve of the whole graph) is skipped when every
+        queued closure's innovation (:meth:`_innovation`) is within the limit: the
+        selection's residual of a lone closure never exceeds its innovation, so it would
+        keep them (the check after the robust solve still runs)."""
+        limit = self.config.closure_max_error_sigmas
+        select = limit > 0 and any(self._innovation(c) > limit for c in self._new_closures)
         while True:
+            queued, self._new_closures = self._new_closures, []
+            if select:
+                in_isam = {c.index for c in self._b.active_closures() if c.index is not None}
+                _select_closures(self._b, self._isam.getFactorsUnsafe(), self._isam.calculateBestEstimate(),
+                                 in_isam)
+            gone = [c for c in self._b.closures if c.status == "removed" and c.index is not None]
+            new = [c for c in queued if c.status == "active"]
+            # one that fits the estimate already (within the kernel's parameter, weight >= 0.5)
+            # goes in robust at once: the Gaussian round would not move the estimate much
+            self._b.judge_closures(self._isam.calculateBestEstimate())
+            near = [c for c in new if c.residual <= self.config.closure_robust_parameter]
+            if near:
+                self._swap(near, [], robust=True)
+            self._swap([c for c in new if c not in near], gone, robust=False)
             self._passes()
             gauss = [c for c in self._b.active_closures() if not c.robust]
             if gauss:
-                g = gtsam.NonlinearFactorGraph()
-                for c in gauss:
-                    g.add(self._b.closure_factor(c, robust=True))
-                res = self._isam.update(g, gtsam.Values(), [c.index for c in gauss])
-                for c, idx in zip(gauss, res.getNewFactorsIndices()):
-                    c.index, c.robust = int(idx), True
+                self._swap(gauss, gauss, robust=True)
                 self._passes()
             worst = self._b.judge_closures(self._isam.calculateBestEstimate())
             if worst is None:
                 return
-            self._b.remove_closure(worst)
-            self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [worst.index])
+            self._b.remove_closure(worst, "robust")
+            select = True
 
     def update(self, iterations: int = 1) -> None:
         """Flush queued factors, then run ``iterations`` relinearisation passes that ignore
         ``isam2_relinearize_skip`` (variables still move only if their delta exceeds the
-        thresholds); no new information is added. Queued closures are judged after the
-        first pass, and all active ones re-checked after the last."""
+        thresholds); no new information is added. Then, when the graph has closures, they
+        are judged again (:meth:`_settle_closures`)."""
         t0 = time.perf_counter()
-        closed = False
         for _ in range(iterations):
-            closed |= self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
-        if closed or self._b.active_closures():
+            self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
+        if self._new_closures or self._b.active_closures():
             self._settle_closures()
         self._time += time.perf_counter() - t0
         self._updates += iterations
@@ -742,11 +823,16 @@ class IncrementalPlanarPoseGraph:
         """(N, 3) float64 current iSAM2 estimate of ``T_odom_base`` per frame.
 
         ``flush``: first run one :meth:`update` pass (queued factors, and the relinearisation
-        the skip interval may have deferred for the newest frames); then a full
-        back-substitution (not limited by the wildfire threshold).
+        the skip interval may have deferred for the newest frames) with every closure ever
+        added judged afresh (removed ones included, as :meth:`PlanarPoseGraph.optimize`
+        does); then a full back-substitution (not limited by the wildfire threshold).
         """
         if self._b.n == 0:
             return np.zeros((0, 3))
+        if flush and self._b.closures:
+            # every closure ever added judged afresh, as the batch graph does: a closure
+            # removed when it was alone may fit now that later ones share its pull
+            self._new_closures += self._b.reinstate_closures()
         if flush or self._pending.size() or self._new_closures:
             self.update()
         return self._b.poses_from(self._isam.calculateBestEstimate())
@@ -772,10 +858,20 @@ class IncrementalPlanarPoseGraph:
         _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
         if self._pending.size() or self._new_closures:
             self.update()
-        jm = self._isam.jointMarginalCovariance([X(i), X(j)])
-        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+        return self._relative_covariance(i, j)
+
+    def _relative_covariance(self, i: int, j: int) -> np.ndarray:
+        joint = _joint_block(self._isam.jointMarginalCovariance([X(i), X(j)]), i, j)
         return _relative_covariance(joint, self._isam.calculateEstimatePose2(X(i)),
                                     self._isam.calculateEstimatePose2(X(j)))
+
+    def _innovation(self, c: _Closure) -> float:
+        """Mahalanobis distance of closure ``c``'s residual at the current estimate against
+        its own covariance plus the estimate's covariance of ``T_base_i_base_j``."""
+        between = self._isam.calculateEstimatePose2(X(c.i)).between(self._isam.calculateEstimatePose2(X(c.j)))
+        r = gtsam.Pose2.Logmap(gtsam.Pose2(*c.pose).between(between))
+        cov = self._relative_covariance(c.i, c.j) + np.linalg.inv(c.information)
+        return float(math.sqrt(max(float(r @ np.linalg.solve(cov, r)), 0.0)))
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local frame at the current estimate."""
