@@ -12,7 +12,7 @@ from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.graph import IncrementalPlanarPoseGraph, PlanarPoseGraph
 from planar_vo.core.geometry import se2_between, se2_compose
 from planar_vo.core.steps import STATUS_DPP, FrameResult, Step
-from planar_vo.sim.simulate import ring_closures, simulate_ring_sequence, trajectory_errors
+from planar_vo.sim.simulate import ring_closure_measurements, simulate_ring_sequence, trajectory_errors
 
 SIG = np.array([0.02, 0.02, math.radians(0.5)])   # closure sigmas, as a verification states them
 INFO = np.diag(1.0 / SIG**2)
@@ -24,17 +24,8 @@ def _ring(seed: int, manhattan: bool):
     and a run of 5 consecutive true closures attached to the place 40 frames (4 m) further
     along the first lap (repeated doors: mutually consistent, all wrong)."""
     seq = simulate_ring_sequence(seed=seed, manhattan=manhattan)
-    truth, n = seq.truth, len(seq.truth)
-    rng = np.random.default_rng([seed, 7])
-    true = [(i, j, se2_between(truth[i], truth[j]) + rng.normal(0.0, SIG)) for i, j in ring_closures(truth)]
-    false = []
-    while len(false) < 8:
-        a, b = sorted(int(v) for v in rng.integers(0, n, 2))
-        if b - a > 50:
-            off = rng.uniform(0.5, 2.0, 2) * rng.choice([-1, 1], 2)
-            dth = math.radians(rng.uniform(3.0, 30.0)) * rng.choice([-1, 1])
-            false.append((a, b, se2_between(truth[a], truth[b]) + np.array([*off, dth])))
-    false += [(i + 40, j, p) for i, j, p in true[5:10]]
+    true, false = ring_closure_measurements(seq.truth, seed=seed, sigma=SIG)
+    assert len(false) == 13
     return seq, true, false
 
 
