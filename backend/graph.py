@@ -76,6 +76,18 @@ def _joint_block(jm, i: int, j: int) -> np.ndarray:
     return np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
 
 
+def _relative_covariances(joint_of, pose_of, i: int, js) -> np.ndarray:
+    """(len(js), 3, 3) covariances of ``T_base_i_base_j`` for each ``j`` in ``js`` from one
+    joint marginal: ``joint_of(keys)`` gives a ``gtsam.JointMarginal`` over ``keys`` and
+    ``pose_of(key)`` the ``gtsam.Pose2`` estimate."""
+    js = [int(j) for j in js]
+    keys = [X(i)] + [X(j) for j in dict.fromkeys(js)]
+    jm = joint_of(keys)
+    pose_i = pose_of(X(i))
+    return np.stack([_relative_covariance(_joint_block(jm, i, j), pose_i, pose_of(X(j))) for j in js]) \
+        if js else np.zeros((0, 3, 3))
+
+
 def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
     """(3, 3) covariance of ``T_i^-1 T_j`` from the (6, 6) joint covariance of the two
     poses (``gtsam.Pose2`` each, right-perturbed tangent ``[x, y, theta]``, i first).
@@ -637,18 +649,23 @@ class PlanarPoseGraph:
         """(3, 3) float64 covariance of ``T_base_i_base_j`` (tangent ``[x, y, theta]`` at
         ``T_base_i_base_j``) at the last :meth:`optimize`, from the joint marginal of
         ``X(i), X(j)``; raises RuntimeError before any :meth:`optimize`."""
+        return self.relative_covariances(i, [j])[0]
+
+    def relative_covariances(self, i: int, js) -> np.ndarray:
+        """(len(js), 3, 3) float64: :meth:`relative_covariance` of ``i`` to each of ``js``
+        from one joint marginal (cheaper than one call per pair, e.g. for proximity search)."""
         if self._solved is None:
             raise RuntimeError("relative_covariance: the batch graph has no solution yet; call optimize() first")
         count, values, n = self._solved
-        _check_pair(i, j, n, "relative_covariance", "of the last solution")
+        for j in js:
+            _check_pair(i, j, n, "relative_covariance", "of the last solution")
         if self._joint is None:
             graph = gtsam.NonlinearFactorGraph()
             for k in range(count):
                 if self._graph.at(k) is not None:
                     graph.add(self._graph.at(k))
             self._joint = gtsam.Marginals(graph, values)
-        joint = _joint_block(self._joint.jointMarginalCovariance([X(i), X(j)]), i, j)
-        return _relative_covariance(joint, values.atPose2(X(i)), values.atPose2(X(j)))
+        return _relative_covariances(self._joint.jointMarginalCovariance, values.atPose2, i, js)
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local Manhattan frame; ``yaw_world`` (rad)
@@ -868,22 +885,26 @@ class IncrementalPlanarPoseGraph:
     def relative_covariance(self, i: int, j: int) -> np.ndarray:
         """(3, 3) float64 covariance of ``T_base_i_base_j`` at the current estimate, from
         iSAM2's joint marginal of ``X(i), X(j)`` (queued factors are flushed first)."""
-        _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
+        return self.relative_covariances(i, [j])[0]
+
+    def relative_covariances(self, i: int, js) -> np.ndarray:
+        """(len(js), 3, 3) float64: :meth:`relative_covariance` of ``i`` to each of ``js``
+        from one joint marginal (one call for many candidates costs far less than one per pair)."""
+        for j in js:
+            _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
         if self._pending.size() or self._new_closures:
             self.update()
-        return self._relative_covariance(i, j)
+        return self._relative_covariances(i, js)
 
-    def _relative_covariance(self, i: int, j: int) -> np.ndarray:
-        joint = _joint_block(self._isam.jointMarginalCovariance([X(i), X(j)]), i, j)
-        return _relative_covariance(joint, self._isam.calculateEstimatePose2(X(i)),
-                                    self._isam.calculateEstimatePose2(X(j)))
+    def _relative_covariances(self, i: int, js) -> np.ndarray:
+        return _relative_covariances(self._isam.jointMarginalCovariance, self._isam.calculateEstimatePose2, i, js)
 
     def _innovation(self, c: _Closure) -> float:
         """Mahalanobis distance of closure ``c``'s residual at the current estimate against
         its own covariance plus the estimate's covariance of ``T_base_i_base_j``."""
         between = self._isam.calculateEstimatePose2(X(c.i)).between(self._isam.calculateEstimatePose2(X(c.j)))
         r = gtsam.Pose2.Logmap(gtsam.Pose2(*c.pose).between(between))
-        cov = self._relative_covariance(c.i, c.j) + np.linalg.inv(c.information)
+        cov = self._relative_covariances(c.i, [c.j])[0] + np.linalg.inv(c.information)
         return float(math.sqrt(max(float(r @ np.linalg.solve(cov, r)), 0.0)))
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:

@@ -148,6 +148,12 @@ def test_relative_covariance_of_a_chain_is_the_composed_step_covariance():
             g.optimize()
         got = g.relative_covariance(i, j)
         np.testing.assert_allclose(got, expected, rtol=0.02, atol=1e-3 * np.abs(expected).max())
+        many = g.relative_covariances(i, [j, 12, j, 0])   # one joint marginal for them all
+        assert many.shape == (4, 3, 3)
+        np.testing.assert_allclose(many[0], got, rtol=1e-9)
+        np.testing.assert_allclose(many[2], got, rtol=1e-9)
+        np.testing.assert_allclose(many[1], g.relative_covariance(i, 12), rtol=1e-9)
+        np.testing.assert_allclose(many[3], g.relative_covariance(i, 0), rtol=1e-9)
 
 
 def test_closure_interface_and_inputs():
