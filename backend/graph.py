@@ -802,29 +802,31 @@ class IncrementalPlanarPoseGraph:
         ones Gaussian, converge, give them the closure kernel (at the drifted estimate a
         true closure's residual is tens of sigma, where that kernel would hardly pull),
         converge; if a residual is then beyond ``closure_max_error_sigmas``, remove the
-        worst and start again.
+        worst and start again. A new closure that already fits the estimate within
+        ``closure_robust_parameter`` (kernel weight >= 0.5) goes in robust at once.
 
         The selection (a Levenberg-Marquardt solve of the whole graph) is skipped when every
-        queued closure's innovation (:meth:`_innovation`) is within the limit: the
-        selection's residual of a lone closure never exceeds its innovation, so it would
-        keep them (the check after the robust solve still runs)."""
+        queued closure fits: its residual, or else its innovation (:meth:`_innovation`), within
+        the limit. A lone closure's residual after the selection's solve never exceeds its
+        innovation, which never exceeds its residual now, so the selection would keep it
+        (the check after the robust solve still runs)."""
         limit = self.config.closure_max_error_sigmas
-        select = limit > 0 and any(self._innovation(c) > limit for c in self._new_closures)
+        self._b.judge_closures(self._isam.calculateBestEstimate())
+        select = limit > 0 and any(c.residual > limit and self._innovation(c) > limit for c in self._new_closures)
         while True:
             queued, self._new_closures = self._new_closures, []
             if select:
                 in_isam = {c.index for c in self._b.active_closures() if c.index is not None}
                 _select_closures(self._b, self._isam.getFactorsUnsafe(), self._isam.calculateBestEstimate(),
                                  in_isam)
+                self._b.judge_closures(self._isam.calculateBestEstimate())
             gone = [c for c in self._b.closures if c.status == "removed" and c.index is not None]
             new = [c for c in queued if c.status == "active"]
-            # one that fits the estimate already (within the kernel's parameter, weight >= 0.5)
-            # goes in robust at once: the Gaussian round would not move the estimate much
-            self._b.judge_closures(self._isam.calculateBestEstimate())
             near = [c for c in new if c.residual <= self.config.closure_robust_parameter]
             if near:
                 self._swap(near, [], robust=True)
-            self._swap([c for c in new if c not in near], gone, robust=False)
+            if gone or len(near) < len(new):
+                self._swap([c for c in new if c not in near], gone, robust=False)
             self._passes()
             gauss = [c for c in self._b.active_closures() if not c.robust]
             if gauss:
