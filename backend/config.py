@@ -122,6 +122,12 @@ class BackendConfig:
     #: match) pulls with bounded force. Closures are first solved Gaussian, then with this
     #: kernel: at the drifted initial guess a true closure's residual is the accumulated drift,
     #: tens of its sigma, where a redescending kernel would ignore it (see graph.py).
+    #: Floors on a closure's marginal sigmas (as the step floors): a verification's covariance
+    #: from its fit reflects the matched points' noise, not systematic errors (depth scale,
+    #: levelling), and residuals are judged in its sigmas. Not tuned on logs; the order of
+    #: the accuracy a closure must have (issue 10: within 5 cm and 0.5 deg).
+    closure_min_sigma_xy: float = 0.01       # m
+    closure_min_sigma_theta_deg: float = 0.1  # deg
     closure_robust_kernel: KernelName = "cauchy"
     closure_robust_parameter: float = 3.0
     #: After each solve the active closure with the largest Mahalanobis residual beyond this
@@ -165,7 +171,8 @@ class BackendConfig:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
-                     "manhattan_instance_size", "closure_max_error_sigmas",
+                     "manhattan_instance_size", "closure_max_error_sigmas", "closure_min_sigma_xy",
+                     "closure_min_sigma_theta_deg",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"config key 'backend.{name}' must be >= 0, got {getattr(self, name)!r}")

@@ -177,6 +177,14 @@ def _is_manhattan_link(f) -> bool:
     return len(keys) == 2 and gtsam.Symbol(keys[0]).chr() == ord("x") and gtsam.Symbol(keys[1]).chr() == ord("m")
 
 
+def _floored(information: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(3, 3) information whose marginal variances are at least ``floor`` (3,): each is raised
+    by adding a diagonal to the covariance (keeps it positive definite)."""
+    cov = np.linalg.inv(information)
+    cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
+    return np.linalg.inv(cov)
+
+
 class _GraphBuilder:
     """Turns front-end results into new factors and initial values (shared by both solvers)."""
 
@@ -202,6 +210,8 @@ class _GraphBuilder:
         self._tie_sigma = math.radians(config.manhattan_tie_sigma_deg)
         self._floor = np.array([config.step_min_sigma_xy, config.step_min_sigma_xy,
                                 math.radians(config.step_min_sigma_theta_deg)]) ** 2
+        self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
+                                        math.radians(config.closure_min_sigma_theta_deg)]) ** 2
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
 
@@ -209,10 +219,7 @@ class _GraphBuilder:
         """Information actually used for a step: bridged override, then sigma floors."""
         if status == STATUS_BRIDGED and self.cfg.bridged_policy == "override":
             information = self._bridged_info
-        cov = np.linalg.inv(information)
-        # Raise each marginal sigma to the floor by adding a diagonal (keeps it PSD).
-        cov = cov + np.diag(np.maximum(self._floor - np.diag(cov), 0.0))
-        return np.linalg.inv(cov)
+        return _floored(information, self._floor)
 
     def relative_factor(self, i: int, j: int, pose: np.ndarray, information: np.ndarray, kind: str):
         noise = robust_noise(step_noise(information), self.cfg.robust_kernel, self.cfg.step_robust_parameter)
@@ -345,8 +352,10 @@ class _GraphBuilder:
 
     # ------------------------------------------------------------------ loop closures
     def new_closure(self, i: int, j: int, pose, information, info: dict | None) -> _Closure:
-        """Validate and record a closure (its information gets the step sigma floors)."""
-        p, inf = self.check_relative(i, j, pose, information, "add_closure")
+        """Validate and record a closure (its information gets the closure sigma floors)."""
+        _check_pair(i, j, self.n, "add_closure", "of the graph")
+        p = _check_pose(pose, "add_closure pose")
+        inf = _floored(_check_information(information, "add_closure information"), self._closure_floor)
         info = dict(info or {})
         clash = sorted(set(info) & set(_CLOSURE_KEYS))
         if clash:
@@ -509,7 +518,8 @@ class PlanarPoseGraph:
 
     def add_closure(self, i: int, j: int, pose, information, *, info: dict | None = None) -> int:
         """Loop closure ``T_base_i_base_j = pose`` (3,) ``(x, y, theta)`` with (3, 3)
-        ``information`` (Pose2 tangent order ``[x, y, theta]``; the step sigma floors apply).
+        ``information`` (Pose2 tangent order ``[x, y, theta]``; sigmas floored at
+        ``closure_min_sigma_xy`` / ``closure_min_sigma_theta_deg``).
 
         Solved robustly and removed by :meth:`optimize` if its residual stays beyond
         ``closure_max_error_sigmas``. ``info`` (e.g. the verification's inliers) is kept and

@@ -171,6 +171,10 @@ def test_closure_interface_and_inputs():
         assert first["residual_sigmas"] is None and first["status"] == "active" and first["inliers"] == 40
         assert first["pose"] == pytest.approx(list(se2_between(truth[2], truth[19])))
         assert first["sigma"] == pytest.approx(list(SIG))
+        # a verification sure to 1 mm and 0.01 deg is held to the closure floors (1 cm, 0.1 deg)
+        tight = np.diag(1.0 / np.array([0.001, 0.001, math.radians(0.01)]) ** 2)
+        assert g.add_closure(4, 17, se2_between(truth[4], truth[17]), tight) == 2
+        assert g.closures()[2]["sigma"] == pytest.approx([0.01, 0.01, math.radians(0.1)])
         with pytest.raises(ValueError, match="reserved key"):
             g.add_closure(2, 19, np.zeros(3), INFO, info={"status": "x"})
         with pytest.raises(ValueError, match="add_closure: j=40 is not a frame"):
@@ -182,8 +186,8 @@ def test_closure_interface_and_inputs():
             assert all(c["residual_sigmas"] is not None for c in g.closures())
         else:
             g.optimize()
-        assert [c["status"] for c in g.closures()] == ["active", "active"]
-        assert g.stats["closures"] == {"added": 2, "active": 2, "removed": 0}
+        assert [c["status"] for c in g.closures()] == ["active"] * 3
+        assert g.stats["closures"] == {"added": 3, "active": 3, "removed": 0}
         with pytest.raises(ValueError, match="i and j must differ"):
             g.relative_covariance(3, 3)
 
