@@ -199,6 +199,7 @@ class _GraphBuilder:
         # (kind, factor) of every robust factor, to report down-weighting after a solve
         self.robust: list[tuple[str, object]] = []
         self.closures: list[_Closure] = []  # every closure ever added, in order
+        self.closure_time = 0.0             # s spent judging closures (selection, settling)
         # Manhattan frame j -> its current variable instance (key M(i)), links on it, last pose
         self.inst_of_frame: list[int] = []
         self._inst_links: list[int] = []
@@ -460,6 +461,7 @@ class _GraphBuilder:
             "drift_associations": self.assoc.drift_associations,
             "closures": {"added": len(self.closures), "active": len(self.active_closures()),
                          "removed": sum(1 for c in self.closures if c.status == "removed")},
+            "closure_time_s": self.closure_time,
         }
 
 
@@ -559,8 +561,10 @@ class PlanarPoseGraph:
             self._result, its, error = _lm(self._graph, self._result, cfg)
             iterations += its
         if closures:
+            t1 = time.perf_counter()
             its, error = self._solve_closures(self._result)
             iterations += its
+            self._b.closure_time += time.perf_counter() - t1
         self._solve = {"iterations": iterations, "time_s": time.perf_counter() - t0,
                        "error_initial": error_initial, "error_final": error,
                        "pruned": dict(self._pruned)}
@@ -750,7 +754,7 @@ class IncrementalPlanarPoseGraph:
         graph, values, k = self._b.frame(result, prev, odometry)
         self._push(graph, values)
         if self._new_closures:
-            self._settle_closures()
+            self._timed_settle()
         self._time += time.perf_counter() - t0
         self._updates += 1
         return k
@@ -805,6 +809,11 @@ class IncrementalPlanarPoseGraph:
             c.index, c.robust = int(idx), robust
         self._updates += 1
 
+    def _timed_settle(self) -> None:
+        t0 = time.perf_counter()
+        self._settle_closures()
+        self._b.closure_time += time.perf_counter() - t0
+
     def _settle_closures(self) -> None:
         """Judge the queued and active closures as the batch graph does: select them on an
         all-Gaussian copy of iSAM2's factors from its current estimate
@@ -857,7 +866,7 @@ class IncrementalPlanarPoseGraph:
         for _ in range(iterations):
             self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
         if self._new_closures or self._b.active_closures():
-            self._settle_closures()
+            self._timed_settle()
         self._time += time.perf_counter() - t0
         self._updates += iterations
 

@@ -95,6 +95,7 @@ def test_false_closures_are_removed_and_leave_no_trace(ring, cls):
         else:
             assert c["reason"] is None and c["residual_sigmas"] <= BackendConfig().closure_max_error_sigmas
     assert g.stats["closures"] == {"added": len(got), "active": n_true, "removed": len(ring["false"])}
+    assert 0.0 < g.stats["closure_time_s"] < g.stats["time_s"]
     clean = trajectory_errors(ring[cls, "clean"][1], truth)["ate_rms_m"]
     assert trajectory_errors(est, truth)["ate_rms_m"] <= 1.1 * clean
 
