@@ -822,7 +822,8 @@ class IncrementalPlanarPoseGraph:
         true closure's residual is tens of sigma, where that kernel would hardly pull),
         converge; if a residual is then beyond ``closure_max_error_sigmas``, remove the
         worst and start again. A new closure that already fits the estimate within
-        ``closure_robust_parameter`` (kernel weight >= 0.5) goes in robust at once.
+        ``closure_robust_parameter`` (kernel weight >= 0.5) goes in robust at once, without
+        extra relinearisation passes.
 
         The selection (a Levenberg-Marquardt solve of the whole graph) is skipped when every
         queued closure fits: its residual, or else its innovation (:meth:`_innovation`), within
@@ -842,11 +843,15 @@ class IncrementalPlanarPoseGraph:
             gone = [c for c in self._b.closures if c.status == "removed" and c.index is not None]
             new = [c for c in queued if c.status == "active"]
             near = [c for c in new if c.residual <= self.config.closure_robust_parameter]
+            far = [c for c in new if c not in near]
             if near:
                 self._swap(near, [], robust=True)
-            if gone or len(near) < len(new):
-                self._swap([c for c in new if c not in near], gone, robust=False)
-            self._passes()
+            if gone or far:
+                self._swap(far, gone, robust=False)
+            if gone or far or not queued:
+                # the estimate moves far (or this is a re-check): converge before judging;
+                # closures that fit already are left to iSAM2's own relinearisation schedule
+                self._passes()
             gauss = [c for c in self._b.active_closures() if not c.robust]
             if gauss:
                 self._swap(gauss, gauss, robust=True)
