@@ -81,11 +81,11 @@ def _relative_covariances(joint_of, pose_of, i: int, js) -> np.ndarray:
     joint marginal: ``joint_of(keys)`` gives a ``gtsam.JointMarginal`` over ``keys`` and
     ``pose_of(key)`` the ``gtsam.Pose2`` estimate."""
     js = [int(j) for j in js]
-    keys = [X(i)] + [X(j) for j in dict.fromkeys(js)]
-    jm = joint_of(keys)
+    if not js:
+        return np.zeros((0, 3, 3))
+    jm = joint_of([X(i)] + [X(j) for j in dict.fromkeys(js)])   # each key once
     pose_i = pose_of(X(i))
-    return np.stack([_relative_covariance(_joint_block(jm, i, j), pose_i, pose_of(X(j))) for j in js]) \
-        if js else np.zeros((0, 3, 3))
+    return np.stack([_relative_covariance(_joint_block(jm, i, j), pose_i, pose_of(X(j))) for j in js])
 
 
 def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
