@@ -212,3 +212,25 @@ def test_closures_removed_when_judged_alone_come_back_with_later_ones():
     assert g.stats["closures"] == batch.stats["closures"] == {"added": len(true), "active": len(true), "removed": 0}
     assert np.abs(best[:, :2] - est[:, :2]).max() < 0.01
     assert trajectory_errors(est, seq.truth)["endpoint_m"] < 0.1 * trajectory_errors(g.raw_poses(), seq.truth)["endpoint_m"]
+
+
+@pytest.mark.parametrize("cls", [PlanarPoseGraph, IncrementalPlanarPoseGraph])
+def test_two_corridors_that_look_alike_close_nothing(cls):
+    """One lap (no true revisit); 20 frames of the far corridor each matched, mutually
+    consistently, to the place of the near corridor that looks the same (the robot as if it
+    stood there turned round). A chain of steps cannot fold 6 m: all are removed."""
+    seq = simulate_ring_sequence(seed=13, laps=1.0)
+    truth = seq.truth
+    far = [k for k in range(len(truth)) if abs(abs(truth[k, 2]) - math.pi) < 1e-9 and truth[k, 1] > 5.9][10:30]
+    near = [k for k in range(len(truth)) if abs(truth[k, 2]) < 1e-9 and truth[k, 1] < 0.1]
+    rng = np.random.default_rng(13)
+    alias = []
+    for j in far:
+        i = min(near, key=lambda k: abs(truth[k, 0] - (12.0 - truth[j, 0])))
+        alias.append((i, j, np.array([0.0, 0.0, math.pi]) + rng.normal(0.0, SIG)))
+    g, est = _run(cls, seq, alias)
+    assert g.stats["closures"] == {"added": 20, "active": 0, "removed": 20}
+    g0 = PlanarPoseGraph()
+    for r in seq.results:
+        g0.add_frame(r)
+    assert np.abs(est[:, :2] - g0.optimize()[:, :2]).max() < 0.01
