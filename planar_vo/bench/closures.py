@@ -86,7 +86,16 @@ def _case(seed: int, manhattan: bool, args) -> dict:
     return out
 
 
+def _check(args) -> None:
+    from planar_vo.core.errors import InputError
+    if min(args.size) <= 0 or args.laps <= 0:
+        raise InputError(f"--size and --laps must be > 0, got {args.size} and {args.laps}")
+    if args.every < 1 or args.false < 0 or args.alias < 0:
+        raise InputError(f"--every must be >= 1 and --false, --alias >= 0, got {args.every}, {args.false}, {args.alias}")
+
+
 def main(args) -> int:
+    _check(args)
     cases = [(s, m) for s in _seeds(args.seeds) for m in (False, True)]
     print(f"rings {args.size[0]:g} x {args.size[1]:g} m, {args.laps:g} laps; closures: true every {args.every} "
           f"frames where the path returns, {args.false} random false + {args.alias} consistent wrong")
