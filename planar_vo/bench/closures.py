@@ -22,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--every", type=int, default=10, help="a true closure every this many frames (default 10)")
     parser.add_argument("--false", type=int, default=8, help="random false closures (default 8)")
     parser.add_argument("--alias", type=int, default=5, help="consistent wrong closures, repeated doors (default 5)")
+    parser.add_argument("--bad-steps", type=int, default=0,
+                        help="steps made 0.5 m / 10 deg wrong while the front-end stays sure of them, "
+                             "evenly spaced (default 0): a known limit of the closure selection")
 
 
 def _seeds(text: str) -> list[int]:
@@ -67,6 +70,8 @@ def _case(seed: int, manhattan: bool, args) -> dict:
     seq = simulate_ring_sequence(seed=seed, manhattan=manhattan, size=tuple(args.size), laps=args.laps)
     true, false = ring_closure_measurements(seq.truth, seed=seed, sigma=sig, n_false=args.false,
                                             alias=args.alias, every=args.every)
+    for k in np.linspace(0, len(seq.results), args.bad_steps + 2)[1:-1].astype(int):
+        seq.results[k].step.pose = seq.results[k].step.pose + np.array([0.5, -0.3, math.radians(10.0)])
     out = {"frames": len(seq.truth), "true": len(true), "false": len(false)}
     ate = lambda e: trajectory_errors(e, seq.truth)["ate_rms_m"]  # noqa: E731
     _, e0, per0, _ = _run(IncrementalPlanarPoseGraph, seq, [], info)
@@ -90,15 +95,17 @@ def _check(args) -> None:
     from planar_vo.core.errors import InputError
     if min(args.size) <= 0 or args.laps <= 0:
         raise InputError(f"--size and --laps must be > 0, got {args.size} and {args.laps}")
-    if args.every < 1 or args.false < 0 or args.alias < 0:
-        raise InputError(f"--every must be >= 1 and --false, --alias >= 0, got {args.every}, {args.false}, {args.alias}")
+    if args.every < 1 or min(args.false, args.alias, args.bad_steps) < 0:
+        raise InputError(f"--every must be >= 1 and --false, --alias, --bad-steps >= 0, got {args.every}, "
+                         f"{args.false}, {args.alias}, {args.bad_steps}")
 
 
 def main(args) -> int:
     _check(args)
     cases = [(s, m) for s in _seeds(args.seeds) for m in (False, True)]
     print(f"rings {args.size[0]:g} x {args.size[1]:g} m, {args.laps:g} laps; closures: true every {args.every} "
-          f"frames where the path returns, {args.false} random false + {args.alias} consistent wrong")
+          f"frames where the path returns, {args.false} random false + {args.alias} consistent wrong; "
+          f"{args.bad_steps} wrong steps the front-end is sure of")
     print("seed manh frames true false | ATE m: none  clean  +false | batch: kept removed solve s | "
           "iSAM2: kept removed ms/frame none clean +false, max ms | batch-iSAM2 mm")
     worst_ratio, all_ok = 0.0, True
