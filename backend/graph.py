@@ -54,8 +54,9 @@ _CLOSURE_KEYS = ("id", "i", "j", "pose", "sigma", "status", "residual_sigmas", "
 class _Closure:
     """One loop closure: ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information``.
 
-    ``index``: its factor's index in the batch graph or in iSAM2 (None before it reached
-    iSAM2); ``robust``: whether that factor carries the closure kernel (else Gaussian).
+    ``index``: its factor's slot in the batch graph, or the index iSAM2 gave its factor
+    (``ISAM2Result.getNewFactorsIndices``; None while it is not in iSAM2); ``robust``:
+    whether that factor carries the closure kernel (else Gaussian).
     """
 
     id: int
