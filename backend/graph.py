@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+import dataclasses
 from dataclasses import dataclass, field
 
 import gtsam
@@ -49,12 +50,13 @@ def _check_information(information, what: str) -> np.ndarray:
 _CLOSURE_KEYS = ("id", "i", "j", "pose", "sigma", "status", "residual_sigmas", "reason")
 
 
-@dataclass
+@dataclass(eq=False)
 class _Closure:
     """One loop closure: ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information``.
 
-    ``index``: its factor's index in the batch graph or in iSAM2 (None before it reached
-    iSAM2); ``robust``: whether that factor carries the closure kernel (else Gaussian).
+    ``index``: its factor's slot in the batch graph, or the index iSAM2 gave its factor
+    (``ISAM2Result.getNewFactorsIndices``; None while it is not in iSAM2); ``robust``:
+    whether that factor carries the closure kernel (else Gaussian).
     """
 
     id: int
@@ -70,6 +72,23 @@ class _Closure:
     robust: bool = False
 
 
+def _joint_block(jm, i: int, j: int) -> np.ndarray:
+    """(6, 6) covariance of ``[X(i), X(j)]`` from a ``gtsam.JointMarginal``."""
+    return np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
+
+
+def _relative_covariances(joint_of, pose_of, i: int, js) -> np.ndarray:
+    """(len(js), 3, 3) covariances of ``T_base_i_base_j`` for each ``j`` in ``js`` from one
+    joint marginal: ``joint_of(keys)`` gives a ``gtsam.JointMarginal`` over ``keys`` and
+    ``pose_of(key)`` the ``gtsam.Pose2`` estimate."""
+    js = [int(j) for j in js]
+    if not js:
+        return np.zeros((0, 3, 3))
+    jm = joint_of([X(i)] + [X(j) for j in dict.fromkeys(js)])   # each key once
+    pose_i = pose_of(X(i))
+    return np.stack([_relative_covariance(_joint_block(jm, i, j), pose_i, pose_of(X(j))) for j in js])
+
+
 def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
     """(3, 3) covariance of ``T_i^-1 T_j`` from the (6, 6) joint covariance of the two
     poses (``gtsam.Pose2`` each, right-perturbed tangent ``[x, y, theta]``, i first).
@@ -81,6 +100,68 @@ def _relative_covariance(joint: np.ndarray, pose_i, pose_j) -> np.ndarray:
     jac = np.hstack([-t_ij.inverse().AdjointMap(), np.eye(3)])
     cov = jac @ joint @ jac.T
     return 0.5 * (cov + cov.T)
+
+
+def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+        cfg: BackendConfig) -> tuple[gtsam.Values, int, float]:
+    """Levenberg-Marquardt with the configured limits: ``(solution, iterations, error)``."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(cfg.lm_max_iterations)
+    params.setRelativeErrorTol(cfg.lm_relative_error_tol)
+    params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    result = opt.optimize()
+    return result, int(opt.iterations()), float(opt.error())
+
+
+def _gaussian_copy(graph: gtsam.NonlinearFactorGraph, skip: set[int]) -> gtsam.NonlinearFactorGraph:
+    """The factors of ``graph`` but those at ``skip`` (and removed ones), every robust
+    ``BetweenFactorPose2`` (steps, native Manhattan links) replaced by its Gaussian core
+    (a ``custom`` Manhattan link, a Python ``CustomFactor``, keeps its kernel)."""
+    out = gtsam.NonlinearFactorGraph()
+    for idx in range(graph.size()):
+        f = graph.at(idx)
+        if f is None or idx in skip:
+            continue
+        if isinstance(f, gtsam.BetweenFactorPose2) and isinstance(f.noiseModel(), gtsam.noiseModel.Robust):
+            keys = f.keys()
+            f = gtsam.BetweenFactorPose2(keys[0], keys[1], f.measured(), f.noiseModel().noise())
+        out.add(f)
+    return out
+
+
+def _select_closures(builder: "_GraphBuilder", graph: gtsam.NonlinearFactorGraph, start: gtsam.Values,
+                     skip: set[int]) -> tuple[gtsam.Values, int]:
+    """Decide which active closures stay: solve ``graph`` (without the factors at ``skip``,
+    the closures already in it) plus every active closure, all Gaussian, from ``start``;
+    remove the closure with the largest Mahalanobis residual beyond
+    ``closure_max_error_sigmas``; repeat until none. Returns ``(solution, iterations)``.
+
+    All Gaussian because a robust step or Manhattan link can give way: a false closure
+    pulling metres against a chain of robust steps pushes a few of them into the kernel's
+    tail, the chain tears there and the false closure fits with a small residual. A Gaussian
+    graph cannot tear, so the false closure's residual stays large (it is one factor against
+    many) and it is removed first; a true closure bent by it recovers once it is gone.
+    """
+    gauss = _gaussian_copy(graph, skip)
+    # The selection needs residuals to a small fraction of a sigma, not the final solve's
+    # 1e-10: stopping at a 1e-6 relative decrease saved a third of its time on the rings.
+    cfg = dataclasses.replace(builder.cfg, lm_relative_error_tol=max(builder.cfg.lm_relative_error_tol, 1e-6))
+    at = {}
+    for c in builder.active_closures():
+        at[c.id] = gauss.size()
+        gauss.add(builder.closure_factor(c, robust=False))
+    iterations = 0
+    values = start
+    while True:
+        # warm start: without the removed closure the solution moves only near it
+        values, its, _ = _lm(gauss, values, cfg)
+        iterations += its
+        worst = builder.judge_closures(values)
+        if worst is None:
+            return values, iterations
+        builder.remove_closure(worst, "all-Gaussian")
+        gauss.remove(at[worst.id])
 
 
 def _check_pair(i: int, j: int, n: int, what: str, where: str) -> None:
@@ -97,6 +178,14 @@ def _is_manhattan_link(f) -> bool:
     return len(keys) == 2 and gtsam.Symbol(keys[0]).chr() == ord("x") and gtsam.Symbol(keys[1]).chr() == ord("m")
 
 
+def _floored(information: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(3, 3) information whose marginal variances are at least ``floor`` (3,): each is raised
+    by adding a diagonal to the covariance (keeps it positive definite)."""
+    cov = np.linalg.inv(information)
+    cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
+    return np.linalg.inv(cov)
+
+
 class _GraphBuilder:
     """Turns front-end results into new factors and initial values (shared by both solvers)."""
 
@@ -111,6 +200,7 @@ class _GraphBuilder:
         # (kind, factor) of every robust factor, to report down-weighting after a solve
         self.robust: list[tuple[str, object]] = []
         self.closures: list[_Closure] = []  # every closure ever added, in order
+        self.closure_time = 0.0             # s spent judging closures (selection, settling)
         # Manhattan frame j -> its current variable instance (key M(i)), links on it, last pose
         self.inst_of_frame: list[int] = []
         self._inst_links: list[int] = []
@@ -122,6 +212,8 @@ class _GraphBuilder:
         self._tie_sigma = math.radians(config.manhattan_tie_sigma_deg)
         self._floor = np.array([config.step_min_sigma_xy, config.step_min_sigma_xy,
                                 math.radians(config.step_min_sigma_theta_deg)]) ** 2
+        self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
+                                        math.radians(config.closure_min_sigma_theta_deg)]) ** 2
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
 
@@ -129,10 +221,7 @@ class _GraphBuilder:
         """Information actually used for a step: bridged override, then sigma floors."""
         if status == STATUS_BRIDGED and self.cfg.bridged_policy == "override":
             information = self._bridged_info
-        cov = np.linalg.inv(information)
-        # Raise each marginal sigma to the floor by adding a diagonal (keeps it PSD).
-        cov = cov + np.diag(np.maximum(self._floor - np.diag(cov), 0.0))
-        return np.linalg.inv(cov)
+        return _floored(information, self._floor)
 
     def relative_factor(self, i: int, j: int, pose: np.ndarray, information: np.ndarray, kind: str):
         noise = robust_noise(step_noise(information), self.cfg.robust_kernel, self.cfg.step_robust_parameter)
@@ -265,8 +354,10 @@ class _GraphBuilder:
 
     # ------------------------------------------------------------------ loop closures
     def new_closure(self, i: int, j: int, pose, information, info: dict | None) -> _Closure:
-        """Validate and record a closure (its information gets the step sigma floors)."""
-        p, inf = self.check_relative(i, j, pose, information, "add_closure")
+        """Validate and record a closure (its information gets the closure sigma floors)."""
+        _check_pair(i, j, self.n, "add_closure", "of the graph")
+        p = _check_pose(pose, "add_closure pose")
+        inf = _floored(_check_information(information, "add_closure information"), self._closure_floor)
         info = dict(info or {})
         clash = sorted(set(info) & set(_CLOSURE_KEYS))
         if clash:
@@ -296,11 +387,21 @@ class _GraphBuilder:
         limit = self.cfg.closure_max_error_sigmas
         return worst if worst is not None and limit > 0 and worst.residual > limit else None
 
-    def remove_closure(self, c: _Closure) -> None:
+    def remove_closure(self, c: _Closure, solve: str) -> None:
+        """Mark ``c`` removed, the reason naming the ``solve`` that showed its residual."""
         n = sum(1 for o in self.closures if o.status == "active")
         c.status = "removed"
         c.reason = (f"residual {c.residual:.1f} sigma > closure_max_error_sigmas "
-                    f"{self.cfg.closure_max_error_sigmas:g} after the solve (worst of {n} active closures)")
+                    f"{self.cfg.closure_max_error_sigmas:g} after the {solve} solve (worst of {n} active closures)")
+
+    def reinstate_closures(self) -> list[_Closure]:
+        """Make every removed closure active again, to be judged afresh with all the others
+        (one judged alone, e.g. the first of a loop, may fit once later ones share its pull);
+        returns them."""
+        back = [c for c in self.closures if c.status == "removed"]
+        for c in back:
+            c.status, c.reason = "active", None
+        return back
 
     def active_closures(self) -> list[_Closure]:
         return [c for c in self.closures if c.status == "active"]
@@ -361,6 +462,7 @@ class _GraphBuilder:
             "drift_associations": self.assoc.drift_associations,
             "closures": {"added": len(self.closures), "active": len(self.active_closures()),
                          "removed": sum(1 for c in self.closures if c.status == "removed")},
+            "closure_time_s": self.closure_time,
         }
 
 
@@ -387,7 +489,9 @@ class PlanarPoseGraph:
         self._prunable: list[int] = []    # indices of Manhattan links and extra relative factors
         self._pruned: Counter = Counter()
         self._link_of: dict = {}          # factor index -> ManhattanLink
-        self._solved: tuple | None = None  # (graph, values) of the last optimize(), for marginals
+        #: (factor count, values, poses) of the last optimize(): factors are only appended (or
+        #: emptied by a solve), so the first ``count`` are the graph that was solved
+        self._solved: tuple | None = None
         self._joint = None                 # gtsam.Marginals on _solved, built on first use
 
     def __len__(self) -> int:
@@ -418,7 +522,8 @@ class PlanarPoseGraph:
 
     def add_closure(self, i: int, j: int, pose, information, *, info: dict | None = None) -> int:
         """Loop closure ``T_base_i_base_j = pose`` (3,) ``(x, y, theta)`` with (3, 3)
-        ``information`` (Pose2 tangent order ``[x, y, theta]``; the step sigma floors apply).
+        ``information`` (Pose2 tangent order ``[x, y, theta]``; sigmas floored at
+        ``closure_min_sigma_xy`` / ``closure_min_sigma_theta_deg``).
 
         Solved robustly and removed by :meth:`optimize` if its residual stays beyond
         ``closure_max_error_sigmas``. ``info`` (e.g. the verification's inliers) is kept and
@@ -427,7 +532,6 @@ class PlanarPoseGraph:
         c = self._b.new_closure(i, j, pose, information, info)
         c.index = self._graph.size()
         self._graph.add(self._b.closure_factor(c, robust=True))
-        c.robust = True
         self._result = None
         return c.id
 
@@ -445,70 +549,63 @@ class PlanarPoseGraph:
             self.optimize()
         return self._b.poses_from(self._without_closures)
 
-    def _lm(self, values: gtsam.Values) -> tuple[gtsam.Values, int, float]:
-        cfg = self.config
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(cfg.lm_max_iterations)
-        params.setRelativeErrorTol(cfg.lm_relative_error_tol)
-        params.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
-        opt = gtsam.LevenbergMarquardtOptimizer(self._graph, values, params)
-        result = opt.optimize()
-        return result, int(opt.iterations()), float(opt.error())
-
     def optimize(self) -> np.ndarray:
         """Batch Levenberg-Marquardt over the whole graph; (N, 3) float64 ``T_odom_base``.
 
-        With closures: first the graph without them (Manhattan pruning included), then the
-        closures are judged against that solution (:meth:`_solve_closures`)."""
+        With closures: first the graph without them (Manhattan pruning included), then every
+        closure ever added (removed ones again too: the decision depends on the set of
+        closures, not on the order of calls) is judged against that solution
+        (:meth:`_solve_closures`)."""
         if self._b.n == 0:
             return np.zeros((0, 3))
+        cfg = self.config
         t0 = time.perf_counter()
-        closures = self._b.active_closures()
+        self._b.reinstate_closures()
+        closures = self._b.closures
         for c in closures:
             self._graph.remove(c.index)
         error_initial = float(self._graph.error(self._initial))
-        self._result, iterations, error = self._lm(self._initial)
-        if self.config.prune_sigmas > 0 and self._prune(self._result):
-            self._result, its, error = self._lm(self._result)
+        self._result, iterations, error = _lm(self._graph, self._initial, cfg)
+        if cfg.prune_sigmas > 0 and self._prune(self._result):
+            self._result, its, error = _lm(self._graph, self._result, cfg)
             iterations += its
         self._without_closures = self._result  # the solution evaluate shows as "smoothed, no loops"
         if closures:
+            t1 = time.perf_counter()
             its, error = self._solve_closures(self._result)
             iterations += its
+            self._b.closure_time += time.perf_counter() - t1
         self._solve = {"iterations": iterations, "time_s": time.perf_counter() - t0,
                        "error_initial": error_initial, "error_final": error,
                        "pruned": dict(self._pruned)}
-        self._solved, self._joint = (self._graph.clone(), self._result, self._b.n), None
+        self._solved, self._joint = (self._graph.size(), self._result, self._b.n), None
         return self._b.poses_from(self._result)
 
     def _solve_closures(self, start: gtsam.Values) -> tuple[int, float]:
-        """Add the active closures to the solution ``start`` (the graph without them) and
-        remove the worst one beyond ``closure_max_error_sigmas`` until none is left.
-
-        Each round solves from ``start`` twice: closures Gaussian (a pose graph from its
-        odometry is well-behaved, and at ``start`` a true closure's residual is the drift,
-        tens of sigma, where a redescending kernel would ignore it), then with the closure
-        kernel from there. Starting every round again from ``start`` means a removed false
-        closure leaves no trace (robust steps or Manhattan links it had pushed into the
-        kernel's tail are not stuck there). Returns ``(iterations, final error)``.
-        """
+        """Add the active closures to ``start``, the solution of the graph without them
+        (whose closure slots are empty): select them all-Gaussian (:func:`_select_closures`),
+        then solve with the closure kernel from the Gaussian solution; if a closure's residual
+        then exceeds ``closure_max_error_sigmas``, remove the worst and select again from
+        ``start``. Returns ``(iterations, final error)``."""
+        cfg = self.config
         iterations = 0
         while True:
+            gauss, its = _select_closures(self._b, self._graph, start, set())
+            iterations += its
             active = self._b.active_closures()
             if not active:
                 self._result = start
                 return iterations, float(self._graph.error(start))
-            for robust in (False, True):
-                for c in active:
-                    self._graph.replace(c.index, self._b.closure_factor(c, robust))
-                    c.robust = robust
-                self._result, its, error = self._lm(start if not robust else self._result)
-                iterations += its
+            for c in active:
+                self._graph.replace(c.index, self._b.closure_factor(c, robust=True))
+            self._result, its, error = _lm(self._graph, gauss, cfg)
+            iterations += its
             worst = self._b.judge_closures(self._result)
             if worst is None:
                 return iterations, error
-            self._b.remove_closure(worst)
-            self._graph.remove(worst.index)
+            self._b.remove_closure(worst, "robust")
+            for c in active:
+                self._graph.remove(c.index)
 
     def _prune(self, values: gtsam.Values) -> int:
         """Remove prunable factors beyond ``prune_sigmas`` at ``values``; a removed Manhattan
@@ -576,15 +673,23 @@ class PlanarPoseGraph:
         """(3, 3) float64 covariance of ``T_base_i_base_j`` (tangent ``[x, y, theta]`` at
         ``T_base_i_base_j``) at the last :meth:`optimize`, from the joint marginal of
         ``X(i), X(j)``; raises RuntimeError before any :meth:`optimize`."""
+        return self.relative_covariances(i, [j])[0]
+
+    def relative_covariances(self, i: int, js) -> np.ndarray:
+        """(len(js), 3, 3) float64: :meth:`relative_covariance` of ``i`` to each of ``js``
+        from one joint marginal (cheaper than one call per pair, e.g. for proximity search)."""
         if self._solved is None:
             raise RuntimeError("relative_covariance: the batch graph has no solution yet; call optimize() first")
-        graph, values, n = self._solved
-        _check_pair(i, j, n, "relative_covariance", "of the last solution")
+        count, values, n = self._solved
+        for j in js:
+            _check_pair(i, j, n, "relative_covariance", "of the last solution")
         if self._joint is None:
+            graph = gtsam.NonlinearFactorGraph()
+            for k in range(count):
+                if self._graph.at(k) is not None:
+                    graph.add(self._graph.at(k))
             self._joint = gtsam.Marginals(graph, values)
-        jm = self._joint.jointMarginalCovariance([X(i), X(j)])
-        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
-        return _relative_covariance(joint, values.atPose2(X(i)), values.atPose2(X(j)))
+        return _relative_covariances(self._joint.jointMarginalCovariance, values.atPose2, i, js)
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local Manhattan frame; ``yaw_world`` (rad)
@@ -657,8 +762,9 @@ class IncrementalPlanarPoseGraph:
             p = self._isam.calculateEstimatePose2(X(k - 1))
             prev = np.array([p.x(), p.y(), p.theta()])
         graph, values, k = self._b.frame(result, prev, odometry)
-        if self._push(graph, values):
-            self._settle_closures()
+        self._push(graph, values)
+        if self._new_closures:
+            self._timed_settle()
         self._time += time.perf_counter() - t0
         self._updates += 1
         return k
@@ -699,23 +805,12 @@ class IncrementalPlanarPoseGraph:
         params.setMaxIterations(self.config.lm_max_iterations)
         return self._b.poses_from(gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize())
 
-    def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *,
-              force: bool = False) -> bool:
-        """One iSAM2 update with ``graph``, ``values``, the queued relative factors and the
-        queued closures (Gaussian: see :meth:`_settle_closures`); returns True if closures went in."""
+    def _push(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *, force: bool = False) -> None:
+        """One iSAM2 update with ``graph``, ``values`` and the queued relative factors."""
         if self._pending.size():
             graph.push_back(self._pending)
             self._pending = gtsam.NonlinearFactorGraph()
-        new, self._new_closures = self._new_closures, []
-        first = graph.size()
-        for c in new:
-            graph.add(self._b.closure_factor(c, robust=False))
-        res = self._isam.update(graph, values, force_relinearize=force)
-        if new:
-            idx = list(res.getNewFactorsIndices())
-            for n, c in enumerate(new):
-                c.index = int(idx[first + n])
-        return bool(new)
+        self._isam.update(graph, values, force_relinearize=force)
 
     def _passes(self) -> None:
         """Relinearisation passes until no variable moves beyond the thresholds (at most
@@ -726,39 +821,82 @@ class IncrementalPlanarPoseGraph:
             if res.getVariablesRelinearized() == 0:
                 break
 
+    def _swap(self, add: list[_Closure], drop: list[_Closure], robust: bool) -> None:
+        """One iSAM2 update that adds ``add`` (closure kernel if ``robust``, else Gaussian)
+        and removes the factors of ``drop`` (by the indices iSAM2 gave them)."""
+        g = gtsam.NonlinearFactorGraph()
+        for c in add:
+            g.add(self._b.closure_factor(c, robust))
+        res = self._isam.update(g, gtsam.Values(), [c.index for c in drop])
+        for c in drop:
+            c.index = None
+        for c, idx in zip(add, res.getNewFactorsIndices()):
+            c.index, c.robust = int(idx), robust
+        self._updates += 1
+
+    def _timed_settle(self) -> None:
+        t0 = time.perf_counter()
+        self._settle_closures()
+        self._b.closure_time += time.perf_counter() - t0
+
     def _settle_closures(self) -> None:
-        """Converge, make the Gaussian closures robust, converge, and remove the worst active
-        closure beyond ``closure_max_error_sigmas`` until none is left (as the batch graph:
-        closures enter Gaussian because at the drifted estimate a true closure's residual is
-        tens of sigma, where the redescending kernel would hardly pull)."""
+        """Judge the queued and active closures as the batch graph does: select them on an
+        all-Gaussian copy of iSAM2's factors from its current estimate
+        (:func:`_select_closures`); then in iSAM2 remove the rejected, add the accepted new
+        ones Gaussian, converge, give them the closure kernel (at the drifted estimate a
+        true closure's residual is tens of sigma, where that kernel would hardly pull),
+        converge; if a residual is then beyond ``closure_max_error_sigmas``, remove the
+        worst and start again. A new closure that already fits the estimate within
+        ``closure_robust_parameter`` (kernel weight >= 0.5) goes in robust at once, without
+        extra relinearisation passes.
+
+        The selection (a Levenberg-Marquardt solve of the whole graph) is skipped when every
+        queued closure fits: its residual, or else its innovation (:meth:`_innovation`), within
+        the limit. A lone closure's residual after the selection's solve never exceeds its
+        innovation, which never exceeds its residual now, so the selection would keep it
+        (the check after the robust solve still runs)."""
+        limit = self.config.closure_max_error_sigmas
+        self._b.judge_closures(self._isam.calculateBestEstimate())
+        select = limit > 0 and any(c.residual > limit and self._innovation(c) > limit for c in self._new_closures)
         while True:
-            self._passes()
+            queued, self._new_closures = self._new_closures, []
+            if select:
+                in_isam = {c.index for c in self._b.active_closures() if c.index is not None}
+                _select_closures(self._b, self._isam.getFactorsUnsafe(), self._isam.calculateBestEstimate(),
+                                 in_isam)
+                self._b.judge_closures(self._isam.calculateBestEstimate())
+            gone = [c for c in self._b.closures if c.status == "removed" and c.index is not None]
+            new = [c for c in queued if c.status == "active"]
+            near = [c for c in new if c.residual <= self.config.closure_robust_parameter]
+            far = [c for c in new if c not in near]
+            if near:
+                self._swap(near, [], robust=True)
+            if gone or far:
+                self._swap(far, gone, robust=False)
+            if gone or far or not queued:
+                # the estimate moves far (or this is a re-check): converge before judging;
+                # closures that fit already are left to iSAM2's own relinearisation schedule
+                self._passes()
             gauss = [c for c in self._b.active_closures() if not c.robust]
             if gauss:
-                g = gtsam.NonlinearFactorGraph()
-                for c in gauss:
-                    g.add(self._b.closure_factor(c, robust=True))
-                res = self._isam.update(g, gtsam.Values(), [c.index for c in gauss])
-                for c, idx in zip(gauss, res.getNewFactorsIndices()):
-                    c.index, c.robust = int(idx), True
+                self._swap(gauss, gauss, robust=True)
                 self._passes()
             worst = self._b.judge_closures(self._isam.calculateBestEstimate())
             if worst is None:
                 return
-            self._b.remove_closure(worst)
-            self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [worst.index])
+            self._b.remove_closure(worst, "robust")
+            select = True
 
     def update(self, iterations: int = 1) -> None:
         """Flush queued factors, then run ``iterations`` relinearisation passes that ignore
         ``isam2_relinearize_skip`` (variables still move only if their delta exceeds the
-        thresholds); no new information is added. Queued closures are judged after the
-        first pass, and all active ones re-checked after the last."""
+        thresholds); no new information is added. Then, when the graph has closures, they
+        are judged again (:meth:`_settle_closures`)."""
         t0 = time.perf_counter()
-        closed = False
         for _ in range(iterations):
-            closed |= self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
-        if closed or self._b.active_closures():
-            self._settle_closures()
+            self._push(gtsam.NonlinearFactorGraph(), gtsam.Values(), force=True)
+        if self._new_closures or self._b.active_closures():
+            self._timed_settle()
         self._time += time.perf_counter() - t0
         self._updates += iterations
 
@@ -766,11 +904,16 @@ class IncrementalPlanarPoseGraph:
         """(N, 3) float64 current iSAM2 estimate of ``T_odom_base`` per frame.
 
         ``flush``: first run one :meth:`update` pass (queued factors, and the relinearisation
-        the skip interval may have deferred for the newest frames); then a full
-        back-substitution (not limited by the wildfire threshold).
+        the skip interval may have deferred for the newest frames) with every closure ever
+        added judged afresh (removed ones included, as :meth:`PlanarPoseGraph.optimize`
+        does); then a full back-substitution (not limited by the wildfire threshold).
         """
         if self._b.n == 0:
             return np.zeros((0, 3))
+        if flush and self._b.closures:
+            # every closure ever added judged afresh, as the batch graph does: a closure
+            # removed when it was alone may fit now that later ones share its pull
+            self._new_closures += self._b.reinstate_closures()
         if flush or self._pending.size() or self._new_closures:
             self.update()
         return self._b.poses_from(self._isam.calculateBestEstimate())
@@ -793,13 +936,27 @@ class IncrementalPlanarPoseGraph:
     def relative_covariance(self, i: int, j: int) -> np.ndarray:
         """(3, 3) float64 covariance of ``T_base_i_base_j`` at the current estimate, from
         iSAM2's joint marginal of ``X(i), X(j)`` (queued factors are flushed first)."""
-        _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
+        return self.relative_covariances(i, [j])[0]
+
+    def relative_covariances(self, i: int, js) -> np.ndarray:
+        """(len(js), 3, 3) float64: :meth:`relative_covariance` of ``i`` to each of ``js``
+        from one joint marginal (one call for many candidates costs far less than one per pair)."""
+        for j in js:
+            _check_pair(i, j, self._b.n, "relative_covariance", "of the graph")
         if self._pending.size() or self._new_closures:
             self.update()
-        jm = self._isam.jointMarginalCovariance([X(i), X(j)])
-        joint = np.block([[jm.at(X(i), X(i)), jm.at(X(i), X(j))], [jm.at(X(j), X(i)), jm.at(X(j), X(j))]])
-        return _relative_covariance(joint, self._isam.calculateEstimatePose2(X(i)),
-                                    self._isam.calculateEstimatePose2(X(j)))
+        return self._relative_covariances(i, js)
+
+    def _relative_covariances(self, i: int, js) -> np.ndarray:
+        return _relative_covariances(self._isam.jointMarginalCovariance, self._isam.calculateEstimatePose2, i, js)
+
+    def _innovation(self, c: _Closure) -> float:
+        """Mahalanobis distance of closure ``c``'s residual at the current estimate against
+        its own covariance plus the estimate's covariance of ``T_base_i_base_j``."""
+        between = self._isam.calculateEstimatePose2(X(c.i)).between(self._isam.calculateEstimatePose2(X(c.j)))
+        r = gtsam.Pose2.Logmap(gtsam.Pose2(*c.pose).between(between))
+        cov = self._relative_covariances(c.i, [c.j])[0] + np.linalg.inv(c.information)
+        return float(math.sqrt(max(float(r @ np.linalg.solve(cov, r)), 0.0)))
 
     def manhattan_frames(self) -> list[tuple[int, float, int]]:
         """``(id, yaw_world, n_observations)`` per local frame at the current estimate."""

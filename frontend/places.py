@@ -285,6 +285,7 @@ class ClosureCheck:
     covariance: np.ndarray | None = None   # (3, 3) base_link, the inverse of ``information``
     lev_motion: tuple | None = None        # levelled (yaw, t (3,)) with X_b = R_y(yaw) X_a + t
     inlier_pairs: np.ndarray | None = None  # (K, 2) int64 keypoint indices [i_a, i_b] of the inliers
+    prior_d2: float | None = None          # squared Mahalanobis distance to ``prior`` (when given and checked)
 
 
 def match_descriptors(d1: np.ndarray, d2: np.ndarray, config: PlaceConfig) -> np.ndarray:
@@ -497,15 +498,16 @@ def _matched_points(a: Keyframe, b: Keyframe, config: PlaceConfig):
             d2_y[keep], len(m))
 
 
-def _prior_mismatch(pose: np.ndarray, cov: np.ndarray, prior, config: PlaceConfig) -> bool:
-    """True when the closure's pose is beyond ``prior_gate_chi2`` (3 dof) of ``prior``
-    ``(pose (3,), covariance (3, 3))``, both covariances combined."""
+def prior_distance(pose: np.ndarray, cov: np.ndarray, prior) -> float | None:
+    """Squared Mahalanobis distance of the closure ``pose`` (3,) with (3, 3) ``cov`` from
+    ``prior`` ``(pose (3,), covariance (3, 3))``, both ``T_base_a_base_b``; the difference
+    is ``prior^-1 * pose``, in the tangent space the covariances are stated in (gtsam.Pose2,
+    right perturbation). None without a prior."""
     if prior is None:
-        return False
-    d = np.asarray(pose, float) - np.asarray(prior[0], float)
-    d[2] = float(geometry.wrap_angle(d[2]))
+        return None
+    d = geometry.se2_between(np.asarray(prior[0], float), np.asarray(pose, float))
     S = np.asarray(prior[1], float) + cov
-    return float(d @ np.linalg.solve(S, d)) > config.prior_gate_chi2
+    return float(d @ np.linalg.solve(S, d))
 
 
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
@@ -557,7 +559,8 @@ def _verify(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfi
     pose, cov_b = lev_motion_to_base_step(float(geometry.wrap_angle(yaw)), t3, cov, geometry.mount_se2(T_base_cam))
     cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([config.min_sigma_xy ** 2, config.min_sigma_xy ** 2,
                                                math.radians(config.min_sigma_theta_deg) ** 2])
-    if _prior_mismatch(pose, cov_b, prior, config):
+    out["prior_d2"] = prior_distance(pose, cov_b, prior)
+    if out["prior_d2"] is not None and out["prior_d2"] > config.prior_gate_chi2:
         return ClosureCheck(False, PRIOR_MISMATCH, None, None, yaw_source=source, **out)
     return ClosureCheck(True, ACCEPTED, pose, np.linalg.inv(cov_b), yaw_source=source, covariance=cov_b,
                         lev_motion=(float(geometry.wrap_angle(yaw)), t3), **out)

@@ -78,17 +78,15 @@ class LoopConfig:
     view_radius_m: float = 1.0
     #: Views overlap only if the headings differ by less than this (deg), plus 3 sigma.
     view_angle_deg: float = 45.0
-    #: A verified closure must agree with the odometry chain's relative pose: squared
-    #: Mahalanobis distance at most ``odometry_chi2`` (3 dof; 16.3 = 99.9 %) with the chain's
-    #: sigmas scaled by ``odometry_sigma_scale`` (stated step sigmas can be optimistic).
-    #: Rejects places that look the same elsewhere, which a redescending graph kernel cannot
-    #: always tell: the chain gives way (its robust steps) instead of the closure.
-    odometry_chi2: float = 16.3
+    #: A verified closure must agree with the odometry chain's relative pose within
+    #: ``places.prior_gate_chi2``, the chain's sigmas scaled by this (stated step sigmas can
+    #: be optimistic). Rejects places that look the same elsewhere, which a redescending
+    #: graph kernel cannot always tell: the chain gives way (its robust steps) instead.
     odometry_sigma_scale: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ("keyframe_distance_m", "keyframe_angle_deg", "proximity_chi2", "view_radius_m",
-                     "view_angle_deg", "odometry_chi2", "odometry_sigma_scale"):
+                     "view_angle_deg", "odometry_sigma_scale"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"config key 'loops.{name}' must be > 0, got {getattr(self, name)}")
         for name in ("recent_path_m", "appearance_candidates", "proximity_candidates"):

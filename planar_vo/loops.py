@@ -32,7 +32,7 @@ import numpy as np
 from planar_vo.config import LoopConfig
 from planar_vo.core.geometry import se2_compose, wrap_angle
 from planar_vo.core.types import CameraIntrinsics
-from planar_vo.frontend.config import PlaceConfig
+from planar_vo.frontend.config import FrontendConfig, PlaceConfig
 from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, verify_closure
 
 
@@ -111,12 +111,16 @@ class LoopCloser:
     (:meth:`add_closure` of either pose graph).
 
     ``intrinsics``: the colour camera; ``T_base_cam``: (4, 4) mount; ``seed``: verification's
-    RANSAC seed (each pair gets ``seed + pair number``, so a run is reproducible).
+    RANSAC seed (each pair gets ``seed + pair number``, so a run is reproducible);
+    ``frontend``: the run's front-end settings (depth range, corner lifting).
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, T_base_cam: np.ndarray, config: LoopConfig,
-                 places: PlaceConfig, graph, seed: int = 0):
+                 places: PlaceConfig, graph, seed: int = 0, frontend: FrontendConfig | None = None):
         self.intrinsics, self.T_base_cam = intrinsics, np.asarray(T_base_cam, dtype=float)
+        # keyframe points are lifted as the odometry lifts its corners (same depth range and filter)
+        fe = frontend or FrontendConfig()
+        self._lift = {"feature_config": fe.features, "depth_range": (fe.min_depth, fe.max_depth)}
         self.config, self.places, self.graph, self.seed = config, places, graph, seed
         self.index = PlaceIndex(places)
         self.keyframes: list[Keyframe] = []
@@ -134,7 +138,7 @@ class LoopCloser:
         t0 = time.perf_counter()
         gray = cv2.cvtColor(frame.color, cv2.COLOR_BGR2GRAY) if frame.color.ndim == 3 else frame.color
         kf = make_keyframe(len(self.graph) - 1, frame.stamp, gray, frame.depth.astype(np.float32, copy=False),
-                           self.intrinsics, R_lev_cam, result.manhattan, self.places)
+                           self.intrinsics, R_lev_cam, result.manhattan, self.places, **self._lift)
         t1 = time.perf_counter()
         self.time_s["keyframes"] += t1 - t0
         found = self._candidates(kf)
@@ -192,23 +196,23 @@ class LoopCloser:
         return [(int(k), float(d2[k])) for k in best]
 
     def _verify(self, a: Keyframe, b: Keyframe, cand: Candidate, chain_pose, chain_cov) -> None:
-        """Verify one pair; an accepted pair becomes a closure factor in the graph unless it
-        contradicts the odometry chain's relative pose ``chain_pose`` (3,) beyond its
-        covariance ``chain_cov`` (3, 3), scaled by ``odometry_sigma_scale`` (a place that
-        looks the same somewhere else: repeated doors and posters)."""
+        """Verify one pair; an accepted pair becomes a closure factor in the graph. The
+        odometry chain's relative pose ``chain_pose`` (3,) with its covariance ``chain_cov``
+        (3, 3), scaled by ``odometry_sigma_scale``, is the verification's prior: a place that
+        looks the same somewhere else (repeated doors and posters) is ``prior_mismatch``,
+        which a redescending graph kernel could not always tell (the chain's robust steps
+        give way instead of the closure)."""
         t0 = time.perf_counter()
-        check = verify_closure(a, b, self.T_base_cam, self.places, seed=self.seed + len(self.candidates))
+        prior = (chain_pose, self.config.odometry_sigma_scale ** 2 * chain_cov)
+        check = verify_closure(a, b, self.T_base_cam, self.places, seed=self.seed + len(self.candidates),
+                               prior=prior)
         cand.verify_ms = 1000.0 * (time.perf_counter() - t0)
         cand.matches, cand.inliers, cand.spread_m = int(check.matches), int(check.inliers), float(check.spread_m)
         cand.verdict, cand.reason = ("accepted" if check.accepted else "rejected"), check.reason
+        cand.odometry_d2 = check.prior_d2
         if check.pose is not None:
             cand.pose = [float(v) for v in check.pose]
-        if check.accepted:
-            cand.odometry_d2 = odometry_distance(chain_pose, chain_cov, check.pose, _covariance(check.information),
-                                                 self.config.odometry_sigma_scale)
-            if cand.odometry_d2 > self.config.odometry_chi2:
-                cand.verdict, cand.reason = "rejected", "inconsistent_with_odometry"
-        if cand.verdict != "accepted":
+        if not check.accepted:
             return
         cand.sigma = [float(v) for v in np.sqrt(np.diag(_covariance(check.information)))]
         cand.closure_id = self.graph.add_closure(a.index, b.index, check.pose, check.information,
@@ -241,16 +245,6 @@ class LoopCloser:
     def accepted(self) -> list[tuple[int, int]]:
         """``(a, b)`` pose indices of the closures in the final solution."""
         return [(c.a, c.b) for c in self.candidates if c.verdict == "accepted"]
-
-
-def odometry_distance(chain_pose, chain_cov, pose, cov, scale: float) -> float:
-    """Squared Mahalanobis distance between a verified relative pose ``pose`` (3,) with
-    covariance ``cov`` and the odometry chain's ``chain_pose`` with ``chain_cov`` (both
-    ``T_base_a_base_b``, gtsam.Pose2 tangent order), the chain's covariance scaled by
-    ``scale ** 2`` (the steps' stated sigmas may be optimistic by this much)."""
-    e = gtsam.Pose2.Logmap(gtsam.Pose2(*map(float, chain_pose)).between(gtsam.Pose2(*map(float, pose))))
-    S = scale ** 2 * np.asarray(chain_cov) + np.asarray(cov)
-    return float(e @ np.linalg.solve(S, e))
 
 
 def _count(items) -> dict[str, int]:

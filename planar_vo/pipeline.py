@@ -286,7 +286,8 @@ def _loop_closer(log, odometry, graph, config: RunConfig) -> LoopCloser | None:
     """The run's loop closer (None when ``loops.enabled`` is off)."""
     if not config.loops.enabled:
         return None
-    return LoopCloser(log.intrinsics, odometry.mount.T_base_cam, config.loops, config.places, graph)
+    return LoopCloser(log.intrinsics, odometry.mount.T_base_cam, config.loops, config.places, graph,
+                      frontend=config.frontend)
 
 
 def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, clock: _Stopwatch,

@@ -47,5 +47,5 @@ def test_exponent_without_sign_is_a_number(tmp_path):
     from planar_vo.config import load_config
 
     p = tmp_path / "c.yaml"
-    p.write_text("loops:\n  odometry_chi2: 1.0e12\n")
-    assert load_config(p).loops.odometry_chi2 == 1.0e12
+    p.write_text("places:\n  prior_gate_chi2: 1.0e12\n")
+    assert load_config(p).places.prior_gate_chi2 == 1.0e12

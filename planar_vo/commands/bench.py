@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, io, peers, run, sweep, batch, wheel, places, loops."""
+"""Benchmarks that print figures: solvers, frontend, backend, closures, io, peers, run, sweep, batch, wheel, places, loops."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +9,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "solvers": ("planar_vo.bench.solvers", "the paper's synthetic experiment (Sec. 3.1): 2-point vs 5-point"),
     "frontend": ("planar_vo.bench.frontend", "front-end time per 960x540 frame pair, per stage"),
     "backend": ("planar_vo.bench.backend", "10,000-pose graph: batch LM and iSAM2 timings"),
+    "closures": ("planar_vo.bench.closures", "loop closures on simulated rings: drift, false closures, batch vs iSAM2"),
     "io": ("planar_vo.bench.io", "peak memory while streaming a >= 1 GB log"),
     "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
     "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),

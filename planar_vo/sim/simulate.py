@@ -223,6 +223,33 @@ def ring_closures(truth: np.ndarray, *, every: int = 10, radius: float = 0.5, mi
     return out
 
 
+def ring_closure_measurements(truth: np.ndarray, *, seed: int, sigma, n_false: int = 8, alias: int = 5,
+                              alias_shift: int = 40, every: int = 10):
+    """Loop-closure measurements on a ring's (N, 3) ``truth``: ``(true, false)``, lists of
+    ``(i, j, pose)`` with ``pose`` the (3,) ``T_base_i_base_j`` as a verification would state it.
+
+    True: :func:`ring_closures` pairs with Gaussian noise ``sigma`` (3,) ``(m, m, rad)``.
+    False: ``n_false`` between random frames at least 50 apart, their poses 0.5-2 m and
+    3-30 deg off the truth, and a run of ``alias`` consecutive true closures (from the 6th)
+    attached to the place ``alias_shift`` frames further along: repeated doors, mutually
+    consistent and all wrong. Seeded by ``seed``.
+    """
+    n = len(truth)
+    sigma = np.asarray(sigma, dtype=float)
+    rng = np.random.default_rng([seed, 7])
+    true = [(i, j, se2_between(truth[i], truth[j]) + rng.normal(0.0, sigma))
+            for i, j in ring_closures(truth, every=every)]
+    false = []
+    while len(false) < n_false:
+        a, b = sorted(int(v) for v in rng.integers(0, n, 2))
+        if b - a > 50:
+            off = rng.uniform(0.5, 2.0, 2) * rng.choice([-1, 1], 2)
+            dth = math.radians(rng.uniform(3.0, 30.0)) * rng.choice([-1, 1])
+            false.append((a, b, se2_between(truth[a], truth[b]) + np.array([*off, dth])))
+    false += [(i + alias_shift, j, p) for i, j, p in true[5:5 + alias] if i + alias_shift < j - 50]
+    return true, false
+
+
 def trajectory_errors(est: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Errors of (N, 3) ``est`` against (N, 3) ``truth`` (same odom, no alignment).
 
