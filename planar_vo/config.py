@@ -83,6 +83,10 @@ class LoopConfig:
     #: be optimistic). Rejects places that look the same elsewhere, which a redescending
     #: graph kernel cannot always tell: the chain gives way (its robust steps) instead.
     odometry_sigma_scale: float = 3.0
+    #: A new keyframe that closed a loop is not kept: the older keyframe it matched stands
+    #: for the place, so memory grows with the area explored, not with the time spent in
+    #: it (a robot going round a floor again and again keeps one lap of keyframes).
+    forget_closed: bool = True
 
     def __post_init__(self) -> None:
         for name in ("keyframe_distance_m", "keyframe_angle_deg", "proximity_chi2", "view_radius_m",

@@ -123,7 +123,10 @@ class LoopCloser:
         self._lift = {"feature_config": fe.features, "depth_range": (fe.min_depth, fe.max_depth)}
         self.config, self.places, self.graph, self.seed = config, places, graph, seed
         self.index = PlaceIndex(places)
-        self.keyframes: list[Keyframe] = []
+        #: every keyframe in order; None where the keyframe was not kept (``forget_closed``)
+        self.keyframes: list[Keyframe | None] = []
+        self.keyframe_frames: list[int] = []      # pose index of every keyframe
+        self._indexed: list[int] = []             # PlaceIndex position -> keyframe position
         self.candidates: list[Candidate] = []
         self._chain = _Chain()
         self.time_s: dict[str, float] = {"keyframes": 0.0, "candidates": 0.0, "verify": 0.0}
@@ -133,7 +136,7 @@ class LoopCloser:
         graph has added it (the graph's pose index is ``result``'s order in the run)."""
         if result.step is not None:
             self._chain.step(np.asarray(result.step.pose, float), _covariance(result.step.information))
-        if self.keyframes and not self._keyframe_due():
+        if self.keyframe_frames and not self._keyframe_due():
             return
         t0 = time.perf_counter()
         gray = cv2.cvtColor(frame.color, cv2.COLOR_BGR2GRAY) if frame.color.ndim == 3 else frame.color
@@ -149,7 +152,12 @@ class LoopCloser:
             self._verify(self.keyframes[pos], kf, cand, rel[pos], cov[pos])
         self.time_s["verify"] += time.perf_counter() - t2
         self._chain.new_keyframe()
+        self.keyframe_frames.append(kf.index)
+        if self.config.forget_closed and any(c.verdict == "accepted" for _, c in found):
+            self.keyframes.append(None)  # the place is known: its older keyframe stands for it
+            return
         self.keyframes.append(kf)
+        self._indexed.append(len(self.keyframes) - 1)
         self.index.add(kf)
 
     def _keyframe_due(self) -> bool:
@@ -166,8 +174,9 @@ class LoopCloser:
             return []
         found: dict[int, Candidate] = {}
         if c.appearance_candidates:
-            max_index = self.keyframes[eligible - 1].index
-            for pos, score in self.index.query(kf, max_index, c.appearance_candidates):
+            max_index = self.keyframe_frames[eligible - 1]
+            for ipos, score in self.index.query(kf, max_index, c.appearance_candidates):
+                pos = self._indexed[ipos]
                 found[pos] = Candidate(self.keyframes[pos].index, kf.index, "appearance", score=float(score))
         for pos, d2 in self._near(eligible):
             cand = found.get(pos)
@@ -191,7 +200,8 @@ class LoopCloser:
         d2 = np.einsum("ki,ki->k", t, np.linalg.solve(S, t[..., None])[..., 0])
         turn_ok = np.abs(wrap_angle(rel[:, 2])) <= (math.radians(c.view_angle_deg)
                                                     + 3.0 * np.sqrt(np.maximum(cov[:, 2, 2], 0.0)))
-        ok = np.flatnonzero((d2 <= c.proximity_chi2) & turn_ok)
+        kept = np.array([kf is not None for kf in self.keyframes[:eligible]], dtype=bool)
+        ok = np.flatnonzero((d2 <= c.proximity_chi2) & turn_ok & kept)
         best = ok[np.argsort(d2[ok])[:c.proximity_candidates]]
         return [(int(k), float(d2[k])) for k in best]
 
@@ -233,7 +243,10 @@ class LoopCloser:
             verdicts[cand.verdict] = verdicts.get(cand.verdict, 0) + 1
             if cand.verdict != "accepted":
                 reasons[cand.reason] = reasons.get(cand.reason, 0) + 1
-        return {"keyframes": len(self.keyframes), "keyframe_frames": [kf.index for kf in self.keyframes],
+        return {"keyframes": len(self.keyframe_frames), "keyframes_kept": len(self._indexed),
+                "keyframe_memory_mb": round(sum(kf.nbytes for kf in self.keyframes if kf is not None) / 2 ** 20
+                                            + self.index.nbytes / 2 ** 20, 2),
+                "keyframe_frames": list(self.keyframe_frames),
                 "candidates": len(self.candidates),
                 "by_source": _count(c.source for c in self.candidates),
                 "verified": len(self.candidates), "accepted": verdicts.get("accepted", 0),

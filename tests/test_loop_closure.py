@@ -72,6 +72,9 @@ def test_outputs_show_the_closures(ring):
     expect = np.array([[smoothed[c["a"]], smoothed[c["b"]]] for c in kept])
     np.testing.assert_allclose(segments, expect, atol=1e-9)
     assert rep["cpu_ms_per_frame"]["loops"] > 0
+    # a keyframe that closed a loop is not kept (memory grows with the area, not the laps)
+    lc = rep["loop_closure"]
+    assert lc["keyframes_kept"] == lc["keyframes"] - len({c["b"] for c in kept})
 
 
 def test_batch_and_online_agree(ring):
