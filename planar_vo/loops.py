@@ -15,9 +15,11 @@ each new keyframe two sources name candidate earlier keyframes:
 
 Keyframes closer than ``recent_path_m`` of travelled path are never candidates (they
 are the same stretch of corridor, seen moments ago). Each candidate is verified with the
-paper's estimators (:func:`planar_vo.frontend.places.verify_closure`); an accepted one
+paper's estimators (:func:`planar_vo.frontend.places.verify_closure`) with the chain's
+prediction as its prior (a look-alike place elsewhere is rejected there); an accepted one
 becomes a robust closure factor in the graph, which removes closures that the solution
-does not support. Every candidate is listed in the report with its verdict and reason.
+does not support. A keyframe that closed a loop is not kept (``forget_closed``). Every
+candidate is listed in the report with its verdict and reason.
 """
 from __future__ import annotations
 
