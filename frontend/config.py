@@ -111,7 +111,9 @@ class FeatureConfig:
     block_size: int = 3
     #: New corners whose gradient structure tensor is edge-like (smaller over larger
     #: eigenvalue below this, over a (2 corner_window + 1)^2 window of the detection image)
-    #: are dropped: KLT slides along edges. 0 disables.
+    #: are dropped: KLT slides along edges. Tracked corners are checked again in every
+    #: frame over LK's window (klt_window): on the low-texture tuning logs those below
+    #: 0.05 there followed only half of their image motion. 0 disables.
     min_corner_ratio: float = 0.05
     corner_window: int = 3
     detect_half: bool = True         # detect at half resolution, refine at full (klt)

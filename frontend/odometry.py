@@ -250,6 +250,7 @@ class PlanarOdometry:
         # the uncertainty of a constant-velocity guess (see _bridge_sigmas)
         self._since_t = 0
         self._since_yaw = 0
+        self._last_t_sigma = 0.0  # m, the last measured translation's sigma (levelled, larger axis)
         self._last_stamp: float | None = None
         self._dt = 0.1
         self.last_detection: PlaneDetection | None = None
@@ -560,8 +561,15 @@ class PlanarOdometry:
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         info.partial = {"prior": how, "walls": n_walls}
         # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
-        # takes back the errors of earlier guesses): the next guess turns at this rate.
-        self._last_motion = (float(mf_yaw[2]), t.copy())
+        # takes back the errors of earlier guesses): the next guess turns at this rate. The
+        # translation guess stays the last measured one, whose error _bridge_sigmas states:
+        # one wall fixes one direction only, and its step's other direction is the guess.
+        # Walls of two directions measure the whole translation: then it is the new guess.
+        measured = how == "zero" or len(walls) >= 2
+        self._last_motion = (float(mf_yaw[2]), np.array(t if measured else self._last_motion[1], dtype=float))
+        if len(walls) >= 2:
+            self._since_t = 0
+            self._last_t_sigma = math.sqrt(max(float(np.linalg.eigvalsh(cov[1:, 1:])[-1]), 0.0))
         return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
 
     def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
@@ -571,14 +579,17 @@ class PlanarOdometry:
         accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
         intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
         degree at first, growing while nothing is measured, capped at ``bridge_sigma_xy``
-        / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured).
+        / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured). The
+        translation also errs by the copied step's own error (its sigma).
         """
         c = self.config.odometry
         cap_xy, cap_th = c.bridge_sigma_xy, math.radians(c.bridge_sigma_theta_deg)
         if nothing_known:
             return cap_xy, cap_th
         dt2 = self._dt * self._dt
-        s_xy = min(max(c.bridge_accel_xy * dt2 * self._since_t, c.min_sigma_xy), cap_xy)
+        # plus the error of the measured step the guess copies (it repeats in every guess)
+        s_xy = min(max(math.hypot(c.bridge_accel_xy * dt2 * self._since_t, self._last_t_sigma), c.min_sigma_xy),
+                   cap_xy)
         s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
                        math.radians(c.min_sigma_theta_deg)), cap_th)
         return s_xy, s_th
@@ -596,6 +607,7 @@ class PlanarOdometry:
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([c.min_sigma_xy ** 2, c.min_sigma_xy ** 2,
                                                    math.radians(c.min_sigma_theta_deg) ** 2])
         self._last_motion = (float(yaw), np.asarray(t, dtype=float).copy())
+        self._last_t_sigma = math.sqrt(max(float(np.linalg.eigvalsh(cov[1:, 1:])[-1]), 0.0) + c.min_sigma_xy ** 2)
         self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)

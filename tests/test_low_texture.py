@@ -1,0 +1,75 @@
+"""Low-texture regressions (issue 9): what a step states when the images say little.
+
+1. A constant-velocity guess repeats the error of the step it copies: its stated sigma
+   includes that step's sigma (partial steps' along-track error was 3x their sigma).
+2. The guess copies the last measured translation, not a partial step's wall-corrected
+   one, unless walls of two directions measured the whole translation (one wall fixes
+   one direction only).
+
+Tracked corners turning into edges (KLT sliding) are tested in test_features.py.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planar_vo.core import geometry as g
+from planar_vo.core.steps import STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics
+from planar_vo.core.types import CameraIntrinsics, Mount
+from planar_vo.frontend import odometry as odometry_module
+from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step
+
+K = CameraIntrinsics(480, 270, 250.0, 250.0, 239.5, 134.5)
+# optical z forward, x right, y down on a base_link x forward, y left, z up; 0.2 m ahead
+T_BASE_CAM = np.array([[0.0, 0.0, 1.0, 0.2], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.5], [0.0, 0.0, 0.0, 1.0]])
+MOUNT_SE2 = g.mount_se2(T_BASE_CAM)
+
+
+def _odometry(dt: float) -> PlanarOdometry:
+    odo = PlanarOdometry(K, Mount(T_BASE_CAM))
+    odo._dt = dt
+    return odo
+
+
+def _measure(odo: PlanarOdometry, yaw: float, t: np.ndarray, sigma_t: float) -> None:
+    """A measured (direction-plus-point) step, as _estimate accepts one."""
+    cov = np.diag([math.radians(0.05) ** 2, sigma_t ** 2, sigma_t ** 2])
+    assert odo._accept(yaw, t, cov, STATUS_DPP, 50, MOUNT_SE2, FrameDiagnostics()) is not None
+
+
+def test_guess_states_the_error_of_the_step_it_copies():
+    """30 Hz, 10 mm steps; the last measured step was 5 mm long along track (its sigma
+    says 5 mm). The bridged and partial steps that copy it are 5 mm off each: their
+    stated along-track sigma must cover that (the old 0.5 m/s^2 k dt^2 model said 1 mm)."""
+    for mf_yaw in (None, (0.0, math.radians(0.05), 0.0)):
+        odo = _odometry(1.0 / 30.0)
+        t_true = np.array([0.0, 0.0, -0.010])
+        _measure(odo, 0.0, t_true + np.array([0.0, 0.0, 0.005]), 0.005)
+        true_step, _ = lev_motion_to_base_step(0.0, t_true, None, MOUNT_SE2)
+        for _ in range(5):
+            step, _ = odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
+            assert step.status == (STATUS_BRIDGED if mf_yaw is None else STATUS_PARTIAL)
+            sigma = np.sqrt(np.diag(np.linalg.inv(step.information)))
+            err = step.pose - true_step
+            assert abs(err[0]) > 0.004  # the copied error is there ...
+            assert abs(err[0]) / sigma[0] < 2.0  # ... and stated
+
+
+def test_partial_steps_copy_the_measured_translation_not_their_own(monkeypatch):
+    """A partial step whose wall pair put it 17 mm sideways must not hand that offset to
+    the next guesses: they copy the last measured translation."""
+    odo = _odometry(0.05)
+    t_true = np.array([0.0, 0.0, -0.014])
+    _measure(odo, 0.0, t_true, 0.002)
+    odo._last_motion = (0.0, t_true.copy())
+    mf_yaw = (0.0, math.radians(0.05), 0.0)
+    # a partial step whose one wall pair (wrongly) says 17 mm sideways
+    with monkeypatch.context() as m:
+        m.setattr(odometry_module, "wall_constraints", lambda *a, **k: [(np.array([1.0, 0.0]), 0.017, 0.002 ** 2)])
+        first, _ = odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
+    true_step, _ = lev_motion_to_base_step(0.0, t_true, None, MOUNT_SE2)
+    assert abs(first.pose[1] - true_step[1]) > 0.008  # that step did take the wrong wall
+    for _ in range(10):
+        step, _ = odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
+        assert np.abs(step.pose[:2] - true_step[:2]).max() < 0.002
