@@ -18,7 +18,7 @@ to end with loop closure in batch and online (iSAM2), and compared with its grou
 * the online run's frames per second end to end, and loop closure's cost in
   milliseconds per frame (wall and CPU, from ``report.json``).
 
-Everything also goes to ``OUT/loops.json``.
+Everything also goes to ``OUT/loops_LAYOUT_SEEDS.json``.
 """
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help="N frames (default: what the laps of --lap-m need at --speed and --rate)")
     parser.add_argument("--cache", default="runs/loops_cache", help="rendered logs, reused (default runs/loops_cache)")
-    parser.add_argument("--out", default="runs/loops", help="run folders and loops.json (default runs/loops)")
+    parser.add_argument("--out", default="runs/loops", help="run folders and loops_LAYOUT_SEEDS.json (default runs/loops)")
     parser.add_argument("--no-online", action="store_true", help="skip the online (iSAM2) run")
     parser.add_argument("--config", default=None, help="run configuration YAML (as planar-vo run --config)")
 
@@ -202,5 +202,5 @@ def main(args: argparse.Namespace) -> int:
     print(format_table(records))
     print(summary(records))
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    write_text_atomic(Path(args.out) / "loops.json", json.dumps(records, indent=2) + "\n")
+    write_text_atomic(Path(args.out) / f"loops_{args.layout}_{args.seeds}.json", json.dumps(records, indent=2) + "\n")
     return 0
