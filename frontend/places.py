@@ -543,15 +543,21 @@ def _verify(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfi
     out = dict(matches=n_matches, inliers=n_in, spread_m=spread, inlier_pairs=pairs[inl])
     if n_in < config.min_inliers or n_in < config.min_inlier_ratio * len(P1):
         return ClosureCheck(False, FEW_INLIERS, None, None, **out)
-    if spread < (config.min_spread_many_m if n_in >= config.many_inliers else config.min_spread_m):
-        return ClosureCheck(False, POOR_SPREAD, None, None, **out)
+    narrow = spread < (config.min_spread_many_m if n_in >= config.many_inliers else config.min_spread_m)
     cov = _fit_covariance(A, chi2, n_in)
     source = "2pt"
     mf = _manhattan_yaw(a, b, yaw, float(cov[0, 0]), config)
     if mf is not None and mf[0] == "mismatch":
         return ClosureCheck(False, MANHATTAN_MISMATCH, None, None, yaw_source="manhattan", **out)
-    if mf is not None and config.yaw_from != "points":
-        yaw_fix, yaw_var, source = _closure_yaw(yaw, float(cov[0, 0]), mf[1], mf[2] ** 2, config.yaw_from)
+    if narrow and (mf is None or prior is None):
+        # inliers in a narrow band (one wall) fix the translation at a given yaw, not the yaw,
+        # and geometry alone cannot tell such a band from a look-alike one elsewhere
+        return ClosureCheck(False, POOR_SPREAD, None, None, **out)
+    if mf is not None and (config.yaw_from != "points" or narrow):
+        # narrow: the walls give the yaw (eq. 1), the points the translation at it
+        # (direction-plus-point), and the prior below must confirm the pose
+        how = "manhattan" if narrow else config.yaw_from
+        yaw_fix, yaw_var, source = _closure_yaw(yaw, float(cov[0, 0]), mf[1], mf[2] ** 2, how)
         yaw, t, inl, A, chi2 = _refine(Q1, Q2, cov1, cov2, d2_y, yaw_fix, t, inl, config, fixed_yaw=True)
         cov = _fit_covariance(A, chi2, int(inl.sum()), yaw_var=yaw_var)
         out["inliers"], out["inlier_pairs"] = int(inl.sum()), pairs[inl]
