@@ -219,3 +219,19 @@ def test_empty_keyframe_is_handled():
     assert index.query(kf, max_index=5, k=3) == []
     c = verify_closure(kf, kf, np.eye(4), CONFIG)
     assert not c.accepted and c.reason == "few_matches"
+
+
+def test_one_wall_view_needs_the_walls_yaw_and_a_prior(corridor):
+    """Facing one wall, the inliers lie in a narrow band: geometry alone refuses the pair
+    (``poor_spread``); with a prior that confirms it, the walls give the yaw (eq. 1) and
+    the points the translation, within 5 cm and 0.5 deg of the ground truth."""
+    a = corridor.keyframe((4.0, 0.0, math.radians(70)))
+    b = corridor.keyframe((4.25, -0.2, math.radians(62)))
+    alone = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG)
+    assert not alone.accepted and alone.reason == "poor_spread"
+    gt = geometry.se2_between(a.gt, b.gt)
+    prior = (gt + [0.04, -0.03, 0.004], np.diag([0.1 ** 2, 0.1 ** 2, math.radians(2.0) ** 2]))
+    c = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=prior)
+    assert c.accepted and c.yaw_source == "manhattan", c.reason
+    e = _error(c, a, b)
+    assert math.hypot(e[0], e[1]) <= 0.05 and abs(math.degrees(e[2])) <= 0.5
