@@ -51,24 +51,20 @@ def compose_covariance(cov_ab: np.ndarray, T_bc, cov_bc: np.ndarray) -> np.ndarr
 
 @dataclass
 class _Chain:
-    """The odometry chain since the run start: pose, path length, and per keyframe the
-    relative pose and covariance keyframe -> now (composed incrementally)."""
+    """The odometry chain since the run start: path length, and per keyframe the relative
+    pose and covariance keyframe -> now (composed incrementally)."""
 
-    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))
     path_m: float = 0.0
     seg_pose: np.ndarray = field(default_factory=lambda: np.zeros(3))   # last keyframe -> now
     seg_cov: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    turned: float = 0.0
     kf_rel: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))       # (K, 3) keyframe -> last keyframe
     kf_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))    # (K, 3, 3)
     kf_path: list = field(default_factory=list)
 
     def step(self, pose: np.ndarray, cov: np.ndarray) -> None:
-        self.pose = se2_compose(self.pose, pose)
         self.path_m += float(math.hypot(pose[0], pose[1]))
         self.seg_cov = compose_covariance(self.seg_cov, pose, cov)
         self.seg_pose = se2_compose(self.seg_pose, pose)
-        self.turned += abs(float(pose[2]))
 
     def relative_to_now(self) -> tuple[np.ndarray, np.ndarray]:
         """``(K, 3)`` poses ``T_base_kf_base_now`` and their ``(K, 3, 3)`` covariances."""
@@ -77,14 +73,13 @@ class _Chain:
         rel = np.array([se2_compose(r, self.seg_pose) for r in self.kf_rel])
         return rel, compose_covariance(self.kf_cov, self.seg_pose, self.seg_cov)
 
-    def new_keyframe(self) -> None:
+    def new_keyframe(self, rel: np.ndarray, cov: np.ndarray) -> None:
         """The current frame becomes a keyframe: every earlier keyframe's relative pose and
-        covariance absorb the segment, and the segment restarts."""
-        self.kf_rel, self.kf_cov = self.relative_to_now()
-        self.kf_rel = np.vstack([self.kf_rel, np.zeros((1, 3))])
-        self.kf_cov = np.concatenate([self.kf_cov, np.zeros((1, 3, 3))])
+        covariance become ``rel``, ``cov`` (:meth:`relative_to_now`), and the segment restarts."""
+        self.kf_rel = np.vstack([rel, np.zeros((1, 3))])
+        self.kf_cov = np.concatenate([cov, np.zeros((1, 3, 3))])
         self.kf_path.append(self.path_m)
-        self.seg_pose, self.seg_cov, self.turned = np.zeros(3), np.zeros((3, 3)), 0.0
+        self.seg_pose, self.seg_cov = np.zeros(3), np.zeros((3, 3))
 
 
 @dataclass
@@ -146,14 +141,14 @@ class LoopCloser:
                            self.intrinsics, R_lev_cam, result.manhattan, self.places, **self._lift)
         t1 = time.perf_counter()
         self.time_s["keyframes"] += t1 - t0
-        found = self._candidates(kf)
+        rel, cov = self._chain.relative_to_now()  # every keyframe -> now, once per keyframe
+        found = self._candidates(kf, rel, cov)
         t2 = time.perf_counter()
         self.time_s["candidates"] += t2 - t1
-        rel, cov = self._chain.relative_to_now()
         for pos, cand in found:
             self._verify(self.keyframes[pos], kf, cand, rel[pos], cov[pos])
         self.time_s["verify"] += time.perf_counter() - t2
-        self._chain.new_keyframe()
+        self._chain.new_keyframe(rel, cov)
         self.keyframe_frames.append(kf.index)
         if self.config.forget_closed and any(c.verdict == "accepted" for _, c in found):
             self.keyframes.append(None)  # the place is known: its older keyframe stands for it
@@ -167,9 +162,10 @@ class LoopCloser:
         return (math.hypot(ch.seg_pose[0], ch.seg_pose[1]) >= c.keyframe_distance_m
                 or abs(float(wrap_angle(ch.seg_pose[2]))) >= math.radians(c.keyframe_angle_deg))
 
-    def _candidates(self, kf: Keyframe) -> list[tuple[int, Candidate]]:
+    def _candidates(self, kf: Keyframe, rel: np.ndarray, cov: np.ndarray) -> list[tuple[int, Candidate]]:
         """Earlier keyframes (positions in :attr:`keyframes`) named by appearance or by
-        proximity, at least ``recent_path_m`` of path back; one :class:`Candidate` each."""
+        proximity, at least ``recent_path_m`` of path back; one :class:`Candidate` each.
+        ``rel``, ``cov``: :meth:`_Chain.relative_to_now`."""
         c, ch = self.config, self._chain
         eligible = int(np.searchsorted(ch.kf_path, ch.path_m - c.recent_path_m, side="right"))
         if eligible == 0:
@@ -180,7 +176,7 @@ class LoopCloser:
             for ipos, score in self.index.query(kf, max_index, c.appearance_candidates):
                 pos = self._indexed[ipos]
                 found[pos] = Candidate(self.keyframes[pos].index, kf.index, "appearance", score=float(score))
-        for pos, d2 in self._near(eligible):
+        for pos, d2 in self._near(rel[:eligible], cov[:eligible]):
             cand = found.get(pos)
             if cand is None:
                 found[pos] = Candidate(self.keyframes[pos].index, kf.index, "proximity", mahalanobis=d2)
@@ -189,20 +185,19 @@ class LoopCloser:
         self.candidates.extend(found.values())
         return sorted(found.items())
 
-    def _near(self, eligible: int) -> list[tuple[int, float]]:
-        """Up to ``proximity_candidates`` of the first ``eligible`` keyframes whose place the
-        chain says the robot may be at now: ``(position, squared Mahalanobis distance)``."""
+    def _near(self, rel: np.ndarray, cov: np.ndarray) -> list[tuple[int, float]]:
+        """Up to ``proximity_candidates`` of the eligible keyframes (``rel`` (K, 3), ``cov``
+        (K, 3, 3): their chain poses and covariances to now) whose place the chain says the
+        robot may be at now: ``(position, squared Mahalanobis distance)``."""
         c = self.config
         if not c.proximity_candidates:
             return []
-        rel, cov = self._chain.relative_to_now()
-        rel, cov = rel[:eligible], cov[:eligible]
         S = cov[:, :2, :2] + c.view_radius_m ** 2 * np.eye(2)
         t = rel[:, :2]
         d2 = np.einsum("ki,ki->k", t, np.linalg.solve(S, t[..., None])[..., 0])
         turn_ok = np.abs(wrap_angle(rel[:, 2])) <= (math.radians(c.view_angle_deg)
                                                     + 3.0 * np.sqrt(np.maximum(cov[:, 2, 2], 0.0)))
-        kept = np.array([kf is not None for kf in self.keyframes[:eligible]], dtype=bool)
+        kept = np.array([kf is not None for kf in self.keyframes[:len(rel)]], dtype=bool)
         ok = np.flatnonzero((d2 <= c.proximity_chi2) & turn_ok & kept)
         best = ok[np.argsort(d2[ok])[:c.proximity_candidates]]
         return [(int(k), float(d2[k])) for k in best]

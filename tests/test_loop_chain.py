@@ -48,11 +48,11 @@ def test_chain_relative_pose_and_covariance_per_keyframe():
     steps = [np.array([0.3, 0.01 * k, 0.05 * (-1) ** k]) for k in range(6)]
     covs = [np.diag(rng.uniform(0.005, 0.02, 3)) ** 2 for _ in steps]
     ch = _Chain()
-    ch.new_keyframe()                       # keyframe 0 at the start
+    ch.new_keyframe(*ch.relative_to_now())  # keyframe 0 at the start
     for k, (s, c) in enumerate(zip(steps, covs)):
         ch.step(s, c)
         if k == 2:
-            ch.new_keyframe()               # keyframe 1 after three steps
+            ch.new_keyframe(*ch.relative_to_now())  # keyframe 1 after three steps
     rel, cov = ch.relative_to_now()
     poses = se2_chain(steps)
     np.testing.assert_allclose(rel[0], se2_between(poses[0], poses[6]), atol=1e-12)

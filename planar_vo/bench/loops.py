@@ -72,24 +72,22 @@ def _log_for(seed: int, args) -> tuple[Path, object]:
 
 def _base_poses(gt, stamps: np.ndarray, T_base_cam: np.ndarray) -> np.ndarray:
     """(N, 3) ground-truth ``T_world_base`` (x, y, yaw) at ``stamps`` (nearest GT pose)."""
-    inv_bc = np.linalg.inv(T_base_cam)
+    from planar_vo.sim.revisits import base_poses_from_cam
+
     idx = np.searchsorted(gt.stamps, stamps).clip(1, len(gt.stamps) - 1)
     idx = np.where(np.abs(gt.stamps[idx - 1] - stamps) < np.abs(gt.stamps[idx] - stamps), idx - 1, idx)
-    T = gt.poses[idx] @ inv_bc
-    return np.column_stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])])
+    return base_poses_from_cam(gt.poses[idx], T_base_cam)
 
 
 def closure_errors(closures: list[dict], gt_base: np.ndarray) -> list[dict]:
     """Each kept closure's translation (m) and yaw (deg) error against the ground-truth
     relative pose of its two frames (``gt_base``: (N, 3) per pose index)."""
-    from planar_vo.core.geometry import se2_between, wrap_angle
+    from planar_vo.sim.revisits import closure_error
 
     out = []
     for c in closures:
-        g = se2_between(gt_base[c["a"]], gt_base[c["b"]])
-        e = np.asarray(c["pose"]) - g
-        out.append({"a": c["a"], "b": c["b"], "error_m": float(math.hypot(e[0], e[1])),
-                    "error_deg": float(abs(math.degrees(wrap_angle(e[2]))))})
+        error_m, error_deg = closure_error(gt_base, c["a"], c["b"], c["pose"])
+        out.append({"a": c["a"], "b": c["b"], "error_m": error_m, "error_deg": error_deg})
     return out
 
 
