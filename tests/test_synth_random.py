@@ -92,6 +92,10 @@ def test_summary_reports_smoothed_minus_raw_and_failures():
     assert s["lturn"]["smoothed_minus_raw"]["worst"] == pytest.approx(0.2)
     assert s["all"]["raw_yaw_deg"]["median"] == 1.0  # absolute values
     assert s["failed"] == [{"name": "hall_s2", "reason": "boom"}]
+    # a log whose run announced it could not estimate the motion is kept apart
+    s = summarise([rec("lturn", 1.0, 0.5), {**rec("lturn", 9.0, 8.0), "motion": "not_estimated"}])
+    assert s["all"]["logs"] == 2 and s["announced"]["logs"] == 1 and s["estimated"]["logs"] == 1
+    assert s["estimated"]["smoothed_drift_pct"]["worst"] == pytest.approx(0.5)
 
 
 def test_step_errors_against_ground_truth(tmp_path):

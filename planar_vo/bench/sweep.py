@@ -191,6 +191,10 @@ def summarise(records: list[dict]) -> dict:
         r["smoothed_minus_raw"] = r["smoothed_drift_pct"] - r["raw_drift_pct"]
     groups = {lay: [r for r in ok if r["layout"] == lay] for lay in dict.fromkeys(r["layout"] for r in records)}
     groups["all"] = ok
+    # a run that announced it could not estimate the motion (report.json ``motion``) is not a
+    # silent failure: its drift is listed with all logs and left out of this row
+    groups["announced"] = [r for r in ok if r.get("motion") == "not_estimated"]
+    groups["estimated"] = [r for r in ok if r.get("motion") != "not_estimated"]
     out: dict = {}
     for name, rs in groups.items():
         g = {key: spread([abs(r[key]) if absolute else r[key] for r in rs]) for key, _, absolute in METRICS}
