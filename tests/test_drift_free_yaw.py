@@ -199,3 +199,26 @@ def test_textureless_corridor_is_announced_not_reported_as_success(tmp_path, cap
     assert steps[0].startswith("index,stamp,status") and len(steps) == 30
     statuses = {line.split(",")[2] for line in steps[1:]}
     assert statuses <= {STATUS_PARTIAL, STATUS_BRIDGED, "dpp", "2pt"}
+
+
+def test_unmeasured_start_speed_keeps_the_bridge_sigma():
+    """A textureless corridor, the robot accelerating from rest: no step measures the speed
+    along the walls, so each partial step's along-wall translation is a guess (zero: nothing
+    was measured before). The guess must keep the bridge's full sigma; it was copied at
+    5 mm more per frame, and a building ring lost 1.9 m over its first 55 frames so."""
+    K, mount, frames = _render(layout="straight", n_frames=30, seed=14, texture="none", speed=0.8,
+                               resolution=(480, 270))
+    odo = PlanarOdometry(K, mount)
+    results = [odo.process(f.rgbd) for f in frames]
+    err, status = _step_errors(results, frames)
+    partial = np.array([s == STATUS_PARTIAL for s in status])
+    assert partial[:8].sum() >= 5
+    sig = np.array([np.sqrt(np.diag(np.linalg.inv(r.step.information))) for r in results[1:]])
+    # the along-track error is the whole step (1-6 cm, accelerating): its sigma must cover it
+    assert np.abs(err[partial, 0]).max() > 0.03
+    z = err[partial] / sig[partial]
+    assert np.all(np.sqrt(np.mean(z ** 2, axis=0)) < 2.0), np.sqrt(np.mean(z ** 2, axis=0))
+    # until a step measures it the speed is unknown: at cruise speed from the first frame the
+    # error is the whole step every frame, which no sigma grown from zero covers
+    first = status.index(STATUS_DPP)
+    assert first >= 5 and np.all(sig[:first][partial[:first], 0] > 0.3), sig[:first, 0]
