@@ -145,6 +145,9 @@ class OdometryConfig:
     min_inliers: int = 20            # 2-point: fewer inliers and the estimator failed
     min_inlier_ratio: float = 0.3
     min_scale_inliers: int = 12      # 2-point: matches with depth that agree on the metric scale
+    #: ... or this many when no Manhattan frame gives a partial step instead (open halls:
+    #: most corners beyond the depth range); fewer, and only the 2-point yaw is used.
+    weak_scale_inliers: int = 5
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6

@@ -396,6 +396,10 @@ class PlanarOdometry:
         two = self._two_point(x1, x2, P1, P2, info)
         dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
                     for e in (dpp, two))
+        two, weak = self._weak_scale(two, mf_yaw, info)
+        if weak is not None and mf_yaw is None:
+            # no wall gives the yaw, the 2-point method does: a partial step at its yaw
+            mf_yaw = weak
         if dpp is not None and two is not None and self._vetoed(dpp, two, info):
             dpp = None
         for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
@@ -504,12 +508,48 @@ class PlanarOdometry:
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
         info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
                        "iterations": est.iterations}
-        # A scale from a handful of depths cannot be checked against outliers.
         if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
-                and n_scale >= c.min_scale_inliers and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
+                and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
                 and est.covariance is not None and est.covariance[0, 0] > 0):
             return motion, est
         return None
+
+    def _weak_scale(self, two, mf_yaw, info):
+        """``(two, yaw)``: the 2-point estimate kept as a whole step, or its yaw alone.
+
+        The yaw and the direction of a 2-point step come from all its image matches; only
+        the metric scale needs depth. In an open hall most corners lie beyond the depth
+        range (walls 5 m away and more), and a robot starting from rest makes millimetre
+        steps: on the low-texture tuning halls 5-11 of ~100 matches had depth, and the
+        steps so refused were bridged at zero motion with a 1 m sigma (1.5-4 m of path
+        lost at the start of 300-frame logs). A scale from ``min_scale_inliers`` agreeing
+        depths is trusted as it is; from ``weak_scale_inliers`` on it is kept when no
+        Manhattan yaw offers a partial step instead (a scale from a handful of depths is
+        less sure than two walls' offsets); below that only the 2-point yaw is used
+        (``yaw`` = ``(yaw, sigma, yaw)`` for a partial step), never a scale none agreed on.
+        """
+        c = self.config.odometry
+        if two is None:
+            return None, None
+        est = two[1]
+        n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
+        if n_scale >= c.min_scale_inliers:
+            return two, None
+        # A few depths can bend the joint fit's yaw away from what the image matches say
+        # (a depth-edge point passing the scale gate); then the step is not trusted and
+        # its yaw is the matches' own, with the disagreement as its sigma.
+        sigma = math.sqrt(float(est.covariance[0, 0]))
+        y_img = float(est.extra.get("epipolar_yaw", two[0].yaw))
+        bend = abs(float(geometry.wrap_angle(two[0].yaw - y_img)))
+        if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma:
+            return two, None
+        info.two_point["scale_refused"] = n_scale
+        if est.status != "pure_rotation":
+            # far points: the sideways direction and the yaw trade off, and without depth
+            # nothing fixes the direction (yaw errors of 0.4-1.6 deg at 5-20 sigma on the
+            # tuning halls); a rotation that explains every match has no such freedom
+            return None, None
+        return None, (y_img, max(sigma, bend), y_img)
 
     def _vetoed(self, dpp, two, info) -> bool:
         """True when the 2-point yaw contradicts the Manhattan yaw (a wrong association).
