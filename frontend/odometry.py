@@ -396,12 +396,16 @@ class PlanarOdometry:
         two = self._two_point(x1, x2, P1, P2, info)
         dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
                     for e in (dpp, two))
+        # The veto needs only the 2-point yaw, which a refused scale leaves intact: in an
+        # open hall a track jumping to a box face 5 deg off came with too few depths for a
+        # whole 2-point step and went through (-5.2 deg in one step on a tuning hall).
+        # A wrong association leaves no Manhattan yaw for a partial step either.
+        if dpp is not None and two is not None and self._vetoed(dpp, two, info):
+            dpp, mf_yaw = None, None
         two, weak = self._weak_scale(two, mf_yaw, info)
         if weak is not None and mf_yaw is None:
             # no wall gives the yaw, the 2-point method does: a partial step at its yaw
             mf_yaw = weak
-        if dpp is not None and two is not None and self._vetoed(dpp, two, info):
-            dpp = None
         for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
             if est is None:
                 continue
@@ -458,6 +462,8 @@ class PlanarOdometry:
             # which moves the next position by well under a millimetre).
             local = yaw_from_manhattan_headings(f.prev_local, f.heading, yaw_prior)
             yaw, local, yaw_sigma = self._same_walls(prev, f, walls, yaw, local, yaw_sigma, info)
+            if self._reference_jumped(f, yaw, local, yaw_sigma, info):
+                continue
             if mf_yaw is None and f.score >= c.bridge_min_score:
                 mf_yaw = (yaw, yaw_sigma, local)
             motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
@@ -472,6 +478,24 @@ class PlanarOdometry:
         if best is not None and best[1].num_inliers < c.dpp_min_inlier_ratio * n_depth:
             best = None
         return best, mf_yaw
+
+    def _reference_jumped(self, f: LocalFrame, yaw: float, local: float, yaw_sigma: float, info) -> bool:
+        """True when the track's carried reference no longer belongs to the surfaces it sees.
+
+        The step's yaw takes back what the steps the reference was carried over got wrong
+        (``yaw - local``: a few tenths of a degree). In an open hall a track unseen for a
+        frame can come back on another surface within the tracking gate -- a box face 5 deg
+        off the one it followed -- and the whole jump would enter one step as rotation
+        (-5.2 deg on a tuning hall, the 2-point yaw agreeing with ``local``). Beyond
+        ``dpp_veto_sigmas`` of the step's sigma and ``dpp_veto_min_deg`` the frame is not
+        used for this step; its observation then becomes the track's new reference.
+        """
+        c = self.config.odometry
+        d = abs(float(geometry.wrap_angle(yaw - local)))
+        if d <= max(c.dpp_veto_sigmas * yaw_sigma, math.radians(c.dpp_veto_min_deg)):
+            return False
+        info.rejected.append({"track_id": f.track_id, "reference_jump_deg": math.degrees(d)})
+        return True
 
     def _same_walls(self, prev: _Prev, f: LocalFrame, walls, yaw: float, local: float, yaw_sigma: float, info):
         """``(yaw, local, yaw_sigma)`` of the direction-plus-point step, checked wall by wall.
