@@ -76,3 +76,31 @@ def test_pure_rotation_without_depth_keeps_its_yaw():
     assert step.status == STATUS_PARTIAL and step.status != STATUS_BRIDGED
     assert abs(math.degrees(step.pose[2] - truth[2])) < 0.05
     assert math.degrees(math.sqrt(np.linalg.inv(step.information)[2, 2])) < 0.5
+
+
+def test_a_jumped_track_reference_does_not_enter_the_step():
+    """A track carried over a frame comes back on another surface 5 deg off (a box face in a
+    hall): its carried reference says the robot turned 5 deg more than the matches did. The
+    step must not take that jump (it did: -5.2 deg in one step on a tuning hall)."""
+    from planar_vo.frontend.manhattan import LocalFrame
+
+    yaw, t = math.radians(0.8), np.array([0.003, 0.0, 0.035])
+    truth, _ = lev_motion_to_base_step(yaw, t, None, MOUNT_SE2)
+    x1, x2, P1, P2 = _hall_matches(yaw, t, 40, 60, 3)   # depths enough for a whole 2-point step
+    h = math.radians(2.0)
+    sig = math.radians(0.05)
+    # Headings follow the levelled frame: rotating by +yaw moves a heading by -yaw (eq. 1 sign
+    # as yaw_from_manhattan_headings); the carried reference is 5 deg off, the previous view not.
+    h2 = h - yaw
+    f = LocalFrame(heading=h2, sigma=sig, score=0.4, track_id=1, prev_heading=h + math.radians(5.0),
+                   prev_sigma=sig, prev_score=0.4, prev_local=h, age=5, sigma_fit=sig, prev_sigma_fit=sig)
+    from planar_vo.frontend.solvers import yaw_from_manhattan_headings
+    assert abs(yaw_from_manhattan_headings(h, h2, 0.0) - yaw) < 1e-9   # the frame-to-frame yaw is right
+    odo = PlanarOdometry(K, Mount(T_BASE_CAM))
+    prev = _Prev(None, x1, P1, [], [])
+    matches = np.column_stack([np.arange(len(x1)), np.arange(len(x1))])
+    info = FrameDiagnostics()
+    info.floor_seen = True
+    step, _ = odo._estimate(prev, x2, P2, matches, [f], [], 0.0, info)
+    assert abs(math.degrees(step.pose[2] - truth[2])) < 0.1
+    assert np.hypot(*(step.pose[:2] - truth[:2])) < 0.005
