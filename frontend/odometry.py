@@ -532,7 +532,10 @@ class PlanarOdometry:
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
         info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
                        "iterations": est.iterations}
-        if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
+        # from yaw_only_min_inliers on the estimate may still give a pure rotation's yaw
+        # (_weak_scale); a whole step needs min_inliers
+        if (motion is not None and n_in >= min(c.min_inliers, c.yaw_only_min_inliers)
+                and n_in >= c.min_inlier_ratio * len(x1)
                 and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
                 and est.covariance is not None and est.covariance[0, 0] > 0):
             return motion, est
@@ -557,7 +560,8 @@ class PlanarOdometry:
             return None, None
         est = two[1]
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
-        if n_scale >= c.min_scale_inliers:
+        whole = est.num_inliers >= c.min_inliers
+        if n_scale >= c.min_scale_inliers and whole:
             return two, None
         # A few depths can bend the joint fit's yaw away from what the image matches say
         # (a depth-edge point passing the scale gate); then the step is not trusted and
@@ -565,7 +569,7 @@ class PlanarOdometry:
         sigma = math.sqrt(float(est.covariance[0, 0]))
         y_img = float(est.extra.get("epipolar_yaw", two[0].yaw))
         bend = abs(float(geometry.wrap_angle(two[0].yaw - y_img)))
-        if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma:
+        if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma and whole:
             return two, None
         info.two_point["scale_refused"] = n_scale
         if est.status != "pure_rotation":

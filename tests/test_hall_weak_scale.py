@@ -104,3 +104,14 @@ def test_a_jumped_track_reference_does_not_enter_the_step():
     step, _ = odo._estimate(prev, x2, P2, matches, [f], [], 0.0, info)
     assert abs(math.degrees(step.pose[2] - truth[2])) < 0.1
     assert np.hypot(*(step.pose[:2] - truth[:2])) < 0.005
+
+
+def test_a_turn_on_few_corners_keeps_its_yaw():
+    """A U-turn in a plain hall: 15 far corners and 3 with depth, turning 2 deg a frame. Too few
+    matches for a whole 2-point step, enough for the yaw of a pure rotation (bridges kept
+    the last turn rate instead: -9 deg over one tuning hall's U-turns)."""
+    yaw, t = math.radians(2.0), np.zeros(3)
+    truth, _ = lev_motion_to_base_step(yaw, t, None, MOUNT_SE2)
+    step = _step(*_hall_matches(yaw, t, 15, 3, 5))
+    assert step.status == STATUS_PARTIAL
+    assert abs(math.degrees(step.pose[2] - truth[2])) < 0.1
