@@ -145,6 +145,12 @@ class OdometryConfig:
     min_inliers: int = 20            # 2-point: fewer inliers and the estimator failed
     min_inlier_ratio: float = 0.3
     min_scale_inliers: int = 12      # 2-point: matches with depth that agree on the metric scale
+    #: ... or this many when no Manhattan frame gives a partial step instead (open halls:
+    #: most corners beyond the depth range); fewer, and only the 2-point yaw is used.
+    weak_scale_inliers: int = 5
+    #: A pure rotation (every match explained by the yaw alone) gives a partial step its yaw
+    #: from this many inliers on (a hall's U-turn with few corners; whole steps: min_inliers).
+    yaw_only_min_inliers: int = 10
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6

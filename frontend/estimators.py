@@ -746,6 +746,9 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
         T = levelling_tilt(*info.extra["levelling_error"])
         x1, x2, P1, P2 = _untilt(x1, T), _untilt(x2, T), P1 @ T, P2 @ T
     inl = info.inliers
+    # the yaw of the image matches alone, before the depths join the fit (a caller can
+    # check that a few depths did not bend it)
+    info.extra["epipolar_yaw"] = float(theta)
     scale = _metric_scale(theta, t_dir, info, P1, P2, opt)
     if scale is None:
         info.status = NO_DEPTH

@@ -396,8 +396,16 @@ class PlanarOdometry:
         two = self._two_point(x1, x2, P1, P2, info)
         dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
                     for e in (dpp, two))
+        # The veto needs only the 2-point yaw, which a refused scale leaves intact: in an
+        # open hall a track jumping to a box face 5 deg off came with too few depths for a
+        # whole 2-point step and went through (-5.2 deg in one step on a tuning hall).
+        # A wrong association leaves no Manhattan yaw for a partial step either.
         if dpp is not None and two is not None and self._vetoed(dpp, two, info):
-            dpp = None
+            dpp, mf_yaw = None, None
+        two, weak = self._weak_scale(two, mf_yaw, info)
+        if weak is not None and mf_yaw is None:
+            # no wall gives the yaw, the 2-point method does: a partial step at its yaw
+            mf_yaw = weak
         for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
             if est is None:
                 continue
@@ -454,6 +462,8 @@ class PlanarOdometry:
             # which moves the next position by well under a millimetre).
             local = yaw_from_manhattan_headings(f.prev_local, f.heading, yaw_prior)
             yaw, local, yaw_sigma = self._same_walls(prev, f, walls, yaw, local, yaw_sigma, info)
+            if self._reference_jumped(f, yaw, local, yaw_sigma, info):
+                continue
             if mf_yaw is None and f.score >= c.bridge_min_score:
                 mf_yaw = (yaw, yaw_sigma, local)
             motion, est = estimate_planar_motion_dpp(P1, P2, local, self._dpp_opt, yaw_sigma=yaw_sigma)
@@ -468,6 +478,24 @@ class PlanarOdometry:
         if best is not None and best[1].num_inliers < c.dpp_min_inlier_ratio * n_depth:
             best = None
         return best, mf_yaw
+
+    def _reference_jumped(self, f: LocalFrame, yaw: float, local: float, yaw_sigma: float, info) -> bool:
+        """True when the track's carried reference no longer belongs to the surfaces it sees.
+
+        The step's yaw takes back what the steps the reference was carried over got wrong
+        (``yaw - local``: a few tenths of a degree). In an open hall a track unseen for a
+        frame can come back on another surface within the tracking gate -- a box face 5 deg
+        off the one it followed -- and the whole jump would enter one step as rotation
+        (-5.2 deg on a tuning hall, the 2-point yaw agreeing with ``local``). Beyond
+        ``dpp_veto_sigmas`` of the step's sigma and ``dpp_veto_min_deg`` the frame is not
+        used for this step; its observation then becomes the track's new reference.
+        """
+        c = self.config.odometry
+        d = abs(float(geometry.wrap_angle(yaw - local)))
+        if d <= max(c.dpp_veto_sigmas * yaw_sigma, math.radians(c.dpp_veto_min_deg)):
+            return False
+        info.rejected.append({"track_id": f.track_id, "reference_jump_deg": math.degrees(d)})
+        return True
 
     def _same_walls(self, prev: _Prev, f: LocalFrame, walls, yaw: float, local: float, yaw_sigma: float, info):
         """``(yaw, local, yaw_sigma)`` of the direction-plus-point step, checked wall by wall.
@@ -504,12 +532,52 @@ class PlanarOdometry:
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
         info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
                        "iterations": est.iterations}
-        # A scale from a handful of depths cannot be checked against outliers.
-        if (motion is not None and n_in >= c.min_inliers and n_in >= c.min_inlier_ratio * len(x1)
-                and n_scale >= c.min_scale_inliers and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
+        # from yaw_only_min_inliers on the estimate may still give a pure rotation's yaw
+        # (_weak_scale); a whole step needs min_inliers
+        if (motion is not None and n_in >= min(c.min_inliers, c.yaw_only_min_inliers)
+                and n_in >= c.min_inlier_ratio * len(x1)
+                and abs(motion.yaw) <= math.radians(c.max_step_yaw_deg)
                 and est.covariance is not None and est.covariance[0, 0] > 0):
             return motion, est
         return None
+
+    def _weak_scale(self, two, mf_yaw, info):
+        """``(two, yaw)``: the 2-point estimate kept as a whole step, or its yaw alone.
+
+        The yaw and the direction of a 2-point step come from all its image matches; only
+        the metric scale needs depth. In an open hall most corners lie beyond the depth
+        range (walls 5 m away and more), and a robot starting from rest makes millimetre
+        steps: on the low-texture tuning halls 5-11 of ~100 matches had depth, and the
+        steps so refused were bridged at zero motion with a 1 m sigma (1.5-4 m of path
+        lost at the start of 300-frame logs). A scale from ``min_scale_inliers`` agreeing
+        depths is trusted as it is; from ``weak_scale_inliers`` on it is kept when no
+        Manhattan yaw offers a partial step instead (a scale from a handful of depths is
+        less sure than two walls' offsets); below that only the 2-point yaw is used
+        (``yaw`` = ``(yaw, sigma, yaw)`` for a partial step), never a scale none agreed on.
+        """
+        c = self.config.odometry
+        if two is None:
+            return None, None
+        est = two[1]
+        n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
+        whole = est.num_inliers >= c.min_inliers
+        if n_scale >= c.min_scale_inliers and whole:
+            return two, None
+        # A few depths can bend the joint fit's yaw away from what the image matches say
+        # (a depth-edge point passing the scale gate); then the step is not trusted and
+        # its yaw is the matches' own, with the disagreement as its sigma.
+        sigma = math.sqrt(float(est.covariance[0, 0]))
+        y_img = float(est.extra.get("epipolar_yaw", two[0].yaw))
+        bend = abs(float(geometry.wrap_angle(two[0].yaw - y_img)))
+        if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma and whole:
+            return two, None
+        info.two_point["scale_refused"] = n_scale
+        if est.status != "pure_rotation":
+            # far points: the sideways direction and the yaw trade off, and without depth
+            # nothing fixes the direction (yaw errors of 0.4-1.6 deg at 5-20 sigma on the
+            # tuning halls); a rotation that explains every match has no such freedom
+            return None, None
+        return None, (y_img, max(sigma, bend), y_img)
 
     def _vetoed(self, dpp, two, info) -> bool:
         """True when the 2-point yaw contradicts the Manhattan yaw (a wrong association).
