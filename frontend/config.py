@@ -148,6 +148,13 @@ class OdometryConfig:
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6
+    #: Matched corners whose depths agree with the same wall or floor in both frames get
+    #: them refined by the plane (planar_vo.frontend.pointplanes) for the 1-point
+    #: translation: ``plane_sigma_m`` is a fitted plane offset's error; a reading's sigma
+    #: grows by ``1 + depth_incidence * (1 / cos - 1)`` at oblique incidence (time of flight).
+    plane_refine: bool = True
+    plane_sigma_m: float = 0.002
+    depth_incidence: float = 0.5
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
     dpp_min_score: float = 0.08      # local frames covering less image area (in both views) are not used
@@ -194,6 +201,11 @@ class OdometryConfig:
     #: normalised RMS is 0.5-1.5 there (bridged steps: 0.04-0.6, their own model).
     min_sigma_xy: float = 0.001
     min_sigma_theta_deg: float = 0.02
+
+    def __post_init__(self) -> None:
+        _positive("odometry", plane_sigma_m=self.plane_sigma_m)
+        if self.depth_incidence < 0:
+            raise ConfigError("config key 'odometry.depth_incidence' must be >= 0")
 
 
 @dataclass
