@@ -154,6 +154,7 @@ class OdometryConfig:
     #: grows by ``1 + depth_incidence * (1 / cos - 1)`` at oblique incidence (time of flight).
     plane_refine: bool = True
     plane_sigma_m: float = 0.002
+    plane_min_cos: float = 0.5       # only corners seen within 60 deg of the plane's normal
     depth_incidence: float = 0.5
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
@@ -194,6 +195,7 @@ class OdometryConfig:
     bridge_sigma_xy: float = 1.0     # metres
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
+    velocity_window: int = 5         # measured steps averaged into the constant-velocity guess
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised
@@ -203,7 +205,8 @@ class OdometryConfig:
     min_sigma_theta_deg: float = 0.02
 
     def __post_init__(self) -> None:
-        _positive("odometry", plane_sigma_m=self.plane_sigma_m)
+        _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
+                  velocity_window=self.velocity_window)
         if self.depth_incidence < 0:
             raise ConfigError("config key 'odometry.depth_incidence' must be >= 0")
 

@@ -37,7 +37,7 @@ def _on_plane(P: np.ndarray, planes: list[Plane], sig: dict, gate_chi2: float):
         N = np.array([p.normal for p in planes])
         off = np.array([p.offset for p in planes])
         c = u @ N.T                                        # (N, K)
-        cc = np.where(c > 0.05, c, np.nan)
+        cc = np.where(c >= sig["min_cos"], c, np.nan)
         s_p = off[None, :] / cc
         var_m = var_model[:, None] * (1.0 + sig["incidence"] * (1.0 / cc - 1.0)) ** 2
         var_p = (s_p * sig["ray"]) ** 2 * (1.0 - cc * cc) / (cc * cc) + (sig["plane"] / cc) ** 2
@@ -52,7 +52,7 @@ def _on_plane(P: np.ndarray, planes: list[Plane], sig: dict, gate_chi2: float):
 
 def refine_pairs_on_planes(P1: np.ndarray, P2: np.ndarray, planes1: list[Plane], planes2: list[Plane],
                            yaw: float, *, depth_sigma_const: float, depth_sigma_quad: float, incidence: float,
-                           ray_sigma: float, plane_sigma: float, gate_chi2: float,
+                           ray_sigma: float, plane_sigma: float, gate_chi2: float, min_cos: float = 0.5,
                            max_normal_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(Q1, Q2 (M, 3), scale1, scale2 (M,))``: matched levelled points ``P1``, ``P2``
     (M, 3), metres, NaN rows without depth, with the depths of matches on the same plane
@@ -64,13 +64,17 @@ def refine_pairs_on_planes(P1: np.ndarray, P2: np.ndarray, planes1: list[Plane],
     ``max_normal_deg`` after the step's ``yaw`` (``X2 = R_y(yaw) X1 + t``). ``incidence``:
     the reading's sigma grows by ``1 + incidence (1 / cos - 1)``. ``ray_sigma``: the ray's
     angular noise (rad, pixel sigma / focal). ``plane_sigma``: a fitted offset's error (m).
+    ``min_cos``: only corners seen at most ``acos(min_cos)`` from the plane's normal: a
+    plane's orientation error ``e`` (a tenth of a degree of levelling or fit) moves a
+    corner's offset by ``e`` times the step, which along the ray scales the step by about
+    ``e / cos`` -- 1-2 % for the floor a few metres ahead (tuning log straight_s123).
     """
     P1, P2 = np.asarray(P1, dtype=float), np.asarray(P2, dtype=float)
     Q1, Q2, sc1, sc2 = P1.copy(), P2.copy(), np.ones(len(P1)), np.ones(len(P2))
     if not planes1 or not planes2 or len(P1) == 0:
         return Q1, Q2, sc1, sc2
     sig = dict(const=depth_sigma_const, quad=depth_sigma_quad, incidence=incidence, ray=ray_sigma,
-               plane=plane_sigma)
+               plane=plane_sigma, min_cos=min_cos)
     k1, u1, c1, s1, v1, vm1 = _on_plane(P1, planes1, sig, gate_chi2)
     k2, u2, c2, s2, v2, vm2 = _on_plane(P2, planes2, sig, gate_chi2)
     n1 = np.array([p.normal for p in planes1])
@@ -81,11 +85,18 @@ def refine_pairs_on_planes(P1: np.ndarray, P2: np.ndarray, planes1: list[Plane],
     same[same] = np.einsum("ij,ij->i", n1[k1[same]] @ R.T, n2[k2[same]]) > np.cos(np.radians(max_normal_deg))
     if not same.any():
         return Q1, Q2, sc1, sc2
-    o1 = np.array([p.offset for p in planes1])[k1[same]]
-    o2 = np.array([p.offset for p in planes2])[k2[same]]
-    a1, a2 = c1[same], c2[same]
-    # the corner's distance beyond the plane, from both readings (variance along the normal)
-    p1, p2 = s1[same] * a1 - o1, s2[same] * a2 - o2
+    # the corner's distance beyond the plane, from both readings (variance along the normal):
+    # a static corner's is the same in both views, else the two are not one plane
+    o1 = np.array([p.offset for p in planes1])[k1]
+    o2 = np.array([p.offset for p in planes2])[k2]
+    with np.errstate(invalid="ignore"):
+        p1_all, p2_all = s1 * c1 - o1, s2 * c2 - o2
+        v_p = v1 * c1 * c1 + v2 * c2 * c2
+        same &= (p1_all - p2_all) ** 2 < gate_chi2 * v_p
+    if not same.any():
+        return Q1, Q2, sc1, sc2
+    o1, o2, a1, a2 = o1[same], o2[same], c1[same], c2[same]
+    p1, p2 = p1_all[same], p2_all[same]
     w1, w2 = 1.0 / (v1[same] * a1 * a1), 1.0 / (v2[same] * a2 * a2)
     p = (w1 * p1 + w2 * p2) / (w1 + w2)
     r1, r2 = (o1 + p) / a1, (o2 + p) / a2

