@@ -52,7 +52,7 @@ def _on_plane(P: np.ndarray, planes: list[Plane], sig: dict, gate_chi2: float):
 
 def refine_pairs_on_planes(P1: np.ndarray, P2: np.ndarray, planes1: list[Plane], planes2: list[Plane],
                            yaw: float, *, depth_sigma_const: float, depth_sigma_quad: float, incidence: float,
-                           ray_sigma: float, plane_sigma: float, gate_chi2: float, min_cos: float = 0.5,
+                           ray_sigma: float, plane_sigma: float, gate_chi2: float, min_cos: float = 0.05,
                            max_normal_deg: float = 5.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(Q1, Q2 (M, 3), scale1, scale2 (M,))``: matched levelled points ``P1``, ``P2``
     (M, 3), metres, NaN rows without depth, with the depths of matches on the same plane
@@ -64,10 +64,11 @@ def refine_pairs_on_planes(P1: np.ndarray, P2: np.ndarray, planes1: list[Plane],
     ``max_normal_deg`` after the step's ``yaw`` (``X2 = R_y(yaw) X1 + t``). ``incidence``:
     the reading's sigma grows by ``1 + incidence (1 / cos - 1)``. ``ray_sigma``: the ray's
     angular noise (rad, pixel sigma / focal). ``plane_sigma``: a fitted offset's error (m).
-    ``min_cos``: only corners seen at most ``acos(min_cos)`` from the plane's normal: a
+    ``min_cos``: only corners seen at most ``acos(min_cos)`` from the plane's normal. A
     plane's orientation error ``e`` (a tenth of a degree of levelling or fit) moves a
     corner's offset by ``e`` times the step, which along the ray scales the step by about
-    ``e / cos`` -- 1-2 % for the floor a few metres ahead (tuning log straight_s123).
+    ``e / cos``; on the tuning log straight_s123 (camera 0.49 m high, pitched 21 deg) the
+    refined steps came out 1.5 % long with ``min_cos`` 0.05 and 0.5 alike.
     """
     P1, P2 = np.asarray(P1, dtype=float), np.asarray(P2, dtype=float)
     Q1, Q2, sc1, sc2 = P1.copy(), P2.copy(), np.ones(len(P1)), np.ones(len(P2))
