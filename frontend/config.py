@@ -154,6 +154,17 @@ class OdometryConfig:
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6
+    #: Matched corners whose depths agree with the same wall or floor in both frames get
+    #: them refined by the plane (planar_vo.frontend.pointplanes) for the 1-point
+    #: translation: ``plane_sigma_m`` is a fitted plane offset's error; a reading's sigma
+    #: grows by ``1 + depth_incidence * (1 / cos - 1)`` at oblique incidence (time of flight).
+    plane_refine: bool = True
+    plane_sigma_m: float = 0.002
+    #: Only corners seen within acos(plane_min_cos) of the plane's normal. 0.5 (60 deg) gave
+    #: smoothed drift median / p90 / worst 0.23 / 0.79 / 1.45 % on the 15 low-texture tuning
+    #: logs, 0.05 gave 0.13 / 0.77 / 1.77 (README "Low-texture corridors").
+    plane_min_cos: float = 0.05
+    depth_incidence: float = 0.5
     dpp_min_inlier_ratio: float = 0.6  # a wrong Manhattan yaw shows as a low 1-point inlier ratio
     dpp_max_yaw_sigma_deg: float = 0.5  # weaker Manhattan yaws leave the step to the 2-point method
     dpp_min_score: float = 0.08      # local frames covering less image area (in both views) are not used
@@ -193,6 +204,7 @@ class OdometryConfig:
     bridge_sigma_xy: float = 1.0     # metres
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
+    velocity_window: int = 5         # measured steps averaged into the constant-velocity guess
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised
@@ -200,6 +212,12 @@ class OdometryConfig:
     #: normalised RMS is 0.5-1.5 there (bridged steps: 0.04-0.6, their own model).
     min_sigma_xy: float = 0.001
     min_sigma_theta_deg: float = 0.02
+
+    def __post_init__(self) -> None:
+        _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
+                  velocity_window=self.velocity_window)
+        if self.depth_incidence < 0:
+            raise ConfigError("config key 'odometry.depth_incidence' must be >= 0")
 
 
 @dataclass

@@ -802,13 +802,14 @@ def _metric_scale(theta: float, t_dir, info: EstimateInfo, P1, P2, opt: MetricTw
 # ------------------------------------------------------------------ direction-plus-point
 
 def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | None = None,
-                               yaw_sigma: float = math.radians(1.0)):
+                               yaw_sigma: float = math.radians(1.0), depth_scale=None):
     """Direction-plus-point estimation (paper Sec. 2.1): yaw known, 1-point RANSAC on ``t``.
 
     ``P1``, ``P2``: (N, 3) float64 levelled 3-D points (metres) of matched features in views 1
     and 2 (rows with NaN or Z <= 0 are ignored); ``yaw``: radians, from the Manhattan
     alignment (:func:`~planar_vo.frontend.solvers.yaw_from_manhattan_headings`);
-    ``yaw_sigma``: its standard deviation (rad).
+    ``yaw_sigma``: its standard deviation (rad). ``depth_scale``: ``(s1 (N,), s2 (N,))`` factors on each view's modelled
+    depth variance (a depth refined by a plane, :mod:`planar_vo.frontend.pointplanes`), or None.
     Returns ``(motion, info)``: ``motion.t`` metric with ``X2 = R_y(yaw) X1 + t``; ``t`` is the
     noise-weighted least-squares mean of ``P2 - R P1`` (x, z) over the inliers.
     ``info.covariance`` (3, 3) over (yaw, t_x, t_z): ``yaw_sigma^2``, the inlier scatter of
@@ -828,7 +829,8 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     if len(idx) < max(opt.min_inliers, 1):
         info.status = TOO_FEW_POINTS
         return None, info
-    rx, rz, dx, dz, vx, vz = _dpp_candidates(P1[idx], P2[idx], yaw, opt)
+    s1, s2 = (np.ones(N), np.ones(N)) if depth_scale is None else map(np.asarray, depth_scale)
+    rx, rz, dx, dz, vx, vz = _dpp_candidates(P1[idx], P2[idx], yaw, opt, (s1[idx], s2[idx]))
     best_ok, info.iterations = _dpp_ransac(dx, dz, vx, vz, opt)
     if best_ok is None or best_ok.sum() < opt.min_inliers:
         info.status = NO_MODEL
@@ -841,9 +843,11 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
 
 
-def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions):
+def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions,
+                    depth_scale: tuple[np.ndarray, np.ndarray]):
     """Per-match translation candidates ``d = P2 - R P1`` (x, z) and their variances:
-    ``(rx, rz, dx, dz, vx, vz)``, each (M,), ``(rx, rz)`` the rotated view-1 points."""
+    ``(rx, rz, dx, dz, vx, vz)``, each (M,), ``(rx, rz)`` the rotated view-1 points; each
+    view's modelled depth variance is scaled by ``depth_scale`` ``(s1, s2)``."""
     c, s = math.cos(yaw), math.sin(yaw)
     rx = c * Q1[:, 0] + s * Q1[:, 2]
     rz = -s * Q1[:, 0] + c * Q1[:, 2]
@@ -851,8 +855,8 @@ def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOpt
     # Per axis: a point X = x Z (x normalised) has var(Z) = sigma_Z^2 along the ray and
     # var(X) = (sigma_px / f)^2 Z^2 + x^2 sigma_Z^2 across it, so depth noise lands on t_z
     # and barely on t_x (one isotropic variance overstated t_x and understated t_z).
-    vz1 = _depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
-    vz2 = _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2
+    vz1 = _depth_sigma(Q1[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2 * depth_scale[0]
+    vz2 = _depth_sigma(Q2[:, 2], opt.depth_sigma_const, opt.depth_sigma_quad) ** 2 * depth_scale[1]
     pix = (opt.pixel_sigma / opt.focal_px) ** 2
     vx = pix * (Q1[:, 2] ** 2 + Q2[:, 2] ** 2) + (Q1[:, 0] / Q1[:, 2]) ** 2 * vz1 + (Q2[:, 0] / Q2[:, 2]) ** 2 * vz2
     vz = vz1 + vz2 + pix * (Q1[:, 0] ** 2 + Q2[:, 0] ** 2)
