@@ -46,7 +46,7 @@ def _step(x1, x2, P1, P2):
     matches = np.column_stack([np.arange(len(x1)), np.arange(len(x1))])
     info = FrameDiagnostics()
     info.floor_seen = True
-    step, _ = odo._estimate(prev, x2, P2, matches, [], [], 0.0, info)
+    step, _ = odo._estimate(prev, x2, P2, matches, [], [], 0.0, info, [])
     return step
 
 
@@ -101,7 +101,7 @@ def test_a_jumped_track_reference_does_not_enter_the_step():
     matches = np.column_stack([np.arange(len(x1)), np.arange(len(x1))])
     info = FrameDiagnostics()
     info.floor_seen = True
-    step, _ = odo._estimate(prev, x2, P2, matches, [f], [], 0.0, info)
+    step, _ = odo._estimate(prev, x2, P2, matches, [f], [], 0.0, info, [])
     assert abs(math.degrees(step.pose[2] - truth[2])) < 0.1
     assert np.hypot(*(step.pose[:2] - truth[:2])) < 0.005
 
