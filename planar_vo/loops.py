@@ -158,13 +158,8 @@ class LoopCloser:
         self.index.add(kf)
 
     def _keyframe_due(self) -> bool:
-        """Travelled ``keyframe_distance_m`` or turned ``keyframe_angle_deg`` since the last
-        keyframe -- or may have: steps that did not measure their translation (partial steps
-        along a wall, bridges) move the chain little and widen its sigma, and a stretch the
-        chain thinks is one place would get one keyframe, so no closure could fix it."""
         c, ch = self.config, self._chain
-        sigma_xy = math.sqrt(max(float(np.linalg.eigvalsh(ch.seg_cov[:2, :2])[-1]), 0.0))
-        return (math.hypot(ch.seg_pose[0], ch.seg_pose[1]) + sigma_xy >= c.keyframe_distance_m
+        return (math.hypot(ch.seg_pose[0], ch.seg_pose[1]) >= c.keyframe_distance_m
                 or abs(float(wrap_angle(ch.seg_pose[2]))) >= math.radians(c.keyframe_angle_deg))
 
     def _candidates(self, kf: Keyframe, rel: np.ndarray, cov: np.ndarray) -> list[tuple[int, Candidate]]:
