@@ -101,6 +101,7 @@ class Candidate:
     sigma: list | None = None
     closure_id: int | None = None
     verify_ms: float = 0.0
+    prior_sigma_m: float | None = None  # the odometry prior's largest translation sigma (scaled)
 
 
 class LoopCloser:
@@ -217,6 +218,7 @@ class LoopCloser:
         cand.matches, cand.inliers, cand.spread_m = int(check.matches), int(check.inliers), float(check.spread_m)
         cand.verdict, cand.reason = ("accepted" if check.accepted else "rejected"), check.reason
         cand.odometry_d2 = check.prior_d2
+        cand.prior_sigma_m = float(math.sqrt(max(np.linalg.eigvalsh(prior[1][:2, :2])[-1], 0.0)))
         if check.pose is not None:
             cand.pose = [float(v) for v in check.pose]
         if not check.accepted:
