@@ -105,6 +105,11 @@ def tilt_from_gravity(g_cam: np.ndarray) -> tuple[float, float]:
 
 # ----------------------------------------------------------------------------- SE(2)
 
+def largest_sigma(cov) -> float:
+    """Standard deviation along the most uncertain direction of a (2, 2) covariance."""
+    return math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(cov, dtype=float))[-1]), 0.0))
+
+
 def se2_compose(a, b) -> np.ndarray:
     """``a * b`` for SE(2) poses ``(x, y, theta)``."""
     ax, ay, at = a

@@ -580,7 +580,7 @@ class PlanarOdometry:
         if two is None:
             return None, None
         est = two[1]
-        n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
+        n_scale = info.two_point["scale_inliers"]  # stated by _two_point
         whole = est.num_inliers >= c.min_inliers
         if n_scale >= c.min_scale_inliers and whole:
             return two, None
@@ -658,7 +658,7 @@ class PlanarOdometry:
         self._last_motion = (float(mf_yaw[2]), np.array(t if measured else self._last_motion[1], dtype=float))
         if len(walls) >= 2:
             self._since_t = 0
-            self._last_t_sigma = math.sqrt(max(float(np.linalg.eigvalsh(cov[1:, 1:])[-1]), 0.0))
+            self._last_t_sigma = geometry.largest_sigma(cov[1:, 1:])
         elif how == "zero":
             # the zero guess along the wall was never measured: the guesses copying it keep
             # the bridge's full sigma (a ring started at cruise speed lost 1.9 m over 55
@@ -706,7 +706,7 @@ class PlanarOdometry:
         # on a tuning log (straight_s118) turned one step's error into 3 % of their path.
         self._measured_t = (self._measured_t + [np.asarray(t, dtype=float).copy()])[-c.velocity_window:]
         self._last_motion = (float(yaw), np.mean(self._measured_t, axis=0))
-        self._last_t_sigma = math.sqrt(max(float(np.linalg.eigvalsh(cov[1:, 1:])[-1]), 0.0) + c.min_sigma_xy ** 2)
+        self._last_t_sigma = math.hypot(geometry.largest_sigma(cov[1:, 1:]), c.min_sigma_xy)
         self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)

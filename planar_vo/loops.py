@@ -32,7 +32,7 @@ import gtsam
 import numpy as np
 
 from planar_vo.config import LoopConfig
-from planar_vo.core.geometry import se2_compose, wrap_angle
+from planar_vo.core.geometry import largest_sigma, se2_compose, wrap_angle
 from planar_vo.core.types import CameraIntrinsics
 from planar_vo.frontend.config import FrontendConfig, PlaceConfig
 from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, verify_closure
@@ -218,7 +218,7 @@ class LoopCloser:
         cand.matches, cand.inliers, cand.spread_m = int(check.matches), int(check.inliers), float(check.spread_m)
         cand.verdict, cand.reason = ("accepted" if check.accepted else "rejected"), check.reason
         cand.odometry_d2 = check.prior_d2
-        cand.prior_sigma_m = float(math.sqrt(max(np.linalg.eigvalsh(prior[1][:2, :2])[-1], 0.0)))
+        cand.prior_sigma_m = largest_sigma(prior[1][:2, :2])
         if check.pose is not None:
             cand.pose = [float(v) for v in check.pose]
         if not check.accepted:
