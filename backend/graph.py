@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from planar_vo.backend.association import ManhattanAssociator
+from planar_vo.backend.association import ManhattanAssociator, ManhattanLink
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor, manhattan_tie,
                                        manhattan_value, robust_noise, robust_weight, step_noise)
@@ -513,6 +513,13 @@ class PlanarPoseGraph:
         self._result = None
         return k
 
+    def manhattan_links(self) -> list[ManhattanLink]:
+        """The Manhattan rotation factors the last :meth:`add_frame` added, as
+        :class:`ManhattanLink` (pose, local frame id, ``measured`` = ``m_frame - theta_pose``
+        in rad with its 90-degree branch resolved, sigma in rad); a new local frame's links
+        may name earlier poses."""
+        return list(self._b.last_links)
+
     def add_relative(self, i: int, j: int, pose, information) -> None:
         """Extra factor ``T_base_i_base_j = pose`` (3,) with (3, 3) ``information`` (e.g. a loop closure)."""
         p, info = self._b.check_relative(i, j, pose, information)
@@ -768,6 +775,10 @@ class IncrementalPlanarPoseGraph:
         self._time += time.perf_counter() - t0
         self._updates += 1
         return k
+
+    def manhattan_links(self) -> list[ManhattanLink]:
+        """As :meth:`PlanarPoseGraph.manhattan_links`."""
+        return list(self._b.last_links)
 
     def add_relative(self, i: int, j: int, pose, information) -> None:
         """Queue an extra relative factor; it reaches iSAM2 with the next update."""

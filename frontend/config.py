@@ -243,9 +243,10 @@ class PlaceConfig:
     recognition and geometric verification. Not part of :class:`FrontendConfig`: the run's
     configuration carries it as its own ``places`` section.
 
-    Keyframes: ``orb_features`` ORB keypoints, kept evenly over a ``grid_cols`` x
-    ``grid_rows`` grid of the image (ORB's own ranking piles them onto the few
-    high-contrast decals, which are exactly the repeated posters and doors).
+    Keyframes: ``orb_features`` ORB keypoints (FAST threshold ``orb_fast_threshold``,
+    halved down to ``orb_min_fast_threshold`` while fewer keypoints with depth are found),
+    kept evenly over a ``grid_cols`` x ``grid_rows`` grid of the image (ORB's own
+    ranking piles them onto the few high-contrast decals, which are exactly the repeated posters and doors).
     Place recognition: a bag of words without a trained vocabulary: ``hash_tables``
     random subsets of ``hash_bits`` descriptor bits (locality-sensitive hashing for the
     Hamming distance, seeded by ``hash_seed``) are the words, weighted by tf-idf over the
@@ -276,6 +277,7 @@ class PlaceConfig:
 
     orb_features: int = 1000
     orb_fast_threshold: int = 12
+    orb_min_fast_threshold: int = 4
     grid_cols: int = 8
     grid_rows: int = 6
     hash_tables: int = 8
@@ -304,7 +306,8 @@ class PlaceConfig:
     prior_gate_chi2: float = 16.27
 
     def __post_init__(self) -> None:
-        _positive("places", prior_gate_chi2=self.prior_gate_chi2, orb_features=self.orb_features,
+        _positive("places", orb_min_fast_threshold=self.orb_min_fast_threshold, prior_gate_chi2=self.prior_gate_chi2,
+                  orb_features=self.orb_features,
                   grid_cols=self.grid_cols, grid_rows=self.grid_rows,
                   hash_tables=self.hash_tables, ratio=self.ratio, max_hamming=self.max_hamming,
                   min_inliers=self.min_inliers, min_spread_m=self.min_spread_m,

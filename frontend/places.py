@@ -122,13 +122,19 @@ def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, conf
     ORB keypoints with a depth reading (verification needs 3-D points; far texture without
     depth would only crowd the matches: from a metre away the far end of a corridor
     looks the same and matches best)."""
-    orb = cv2.ORB_create(nfeatures=3 * config.orb_features, scaleFactor=ORB_SCALE,
-                         fastThreshold=config.orb_fast_threshold)
-    kps = orb.detect(gray, None)
-    if kps:
-        px = np.array([k.pt for k in kps], np.float32)
-        P = lift(px, undistort(px, intrinsics), depth, *lift_args)
-        kps = [k for k, ok in zip(kps, np.isfinite(P[:, 2])) if ok]
+    threshold = config.orb_fast_threshold
+    while True:
+        orb = cv2.ORB_create(nfeatures=3 * config.orb_features, scaleFactor=ORB_SCALE, fastThreshold=threshold)
+        kps = orb.detect(gray, None)
+        if kps:
+            px = np.array([k.pt for k in kps], np.float32)
+            P = lift(px, undistort(px, intrinsics), depth, *lift_args)
+            kps = [k for k, ok in zip(kps, np.isfinite(P[:, 2])) if ok]
+        # plain walls: at the default threshold a low-contrast frame gave 3-8 keypoints
+        # where a threshold of 4 gave 600-800 (what the odometry's corners track there)
+        if len(kps) >= config.orb_features or threshold <= config.orb_min_fast_threshold:
+            break
+        threshold = max(threshold // 2, config.orb_min_fast_threshold)
     kps, desc = orb.compute(gray, _grid_select(kps, gray.shape, config))
     if desc is None or not kps:
         return (np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),

@@ -83,6 +83,21 @@ class LoopConfig:
     #: be optimistic). Rejects places that look the same elsewhere, which a redescending
     #: graph kernel cannot always tell: the chain gives way (its robust steps) instead.
     odometry_sigma_scale: float = 3.0
+    #: The same scale for guessed steps (partial, bridged): their sigmas are bounds already
+    #: (the bridge's cap, or an acceleration bound on the constant-velocity guess), not a
+    #: fit's statement. On low-texture rings with 40 % partial steps they made the scaled
+    #: prior 4.5 m wide at lap scale, where the look-alikes are 5-10 m apart.
+    guessed_sigma_scale: float = 1.0
+    #: A verified closure must agree (within ``places.prior_gate_chi2``) with the latest
+    #: closure accepted within this much path back, chained through the odometry between
+    #: the two pairs of keyframes; 0 turns the check off.
+    consistency_path_m: float = 3.0
+    #: The prior's heading: ``manhattan`` holds each keyframe's heading by the Manhattan
+    #: factors the graph linked at the keyframes (a filter over the chain, per earlier
+    #: keyframe), so its sigmas stop growing with the heading drift of the path between;
+    #: ``chain`` is the odometry chain alone (its translation sigma grows with path x heading
+    #: sigma: 3.6-4.5 m scaled at lap scale on the 40 m rings, too wide to tell places 10 m apart).
+    prior_heading: Literal["manhattan", "chain"] = "manhattan"
     #: A new keyframe that closed a loop is not kept: the older keyframe it matched stands
     #: for the place, so memory grows with the area explored, not with the time spent in
     #: it (a robot going round a floor again and again keeps one lap of keyframes).
@@ -90,10 +105,12 @@ class LoopConfig:
 
     def __post_init__(self) -> None:
         for name in ("keyframe_distance_m", "keyframe_angle_deg", "proximity_chi2", "view_radius_m",
-                     "view_angle_deg", "odometry_sigma_scale"):
+                     "view_angle_deg", "odometry_sigma_scale", "guessed_sigma_scale"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"config key 'loops.{name}' must be > 0, got {getattr(self, name)}")
-        for name in ("recent_path_m", "appearance_candidates", "proximity_candidates"):
+        if self.prior_heading not in ("manhattan", "chain"):
+            raise ConfigError(f"config key 'loops.prior_heading' must be manhattan or chain, got {self.prior_heading!r}")
+        for name in ("recent_path_m", "appearance_candidates", "proximity_candidates", "consistency_path_m"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"config key 'loops.{name}' must be >= 0, got {getattr(self, name)}")
 

@@ -32,10 +32,11 @@ import gtsam
 import numpy as np
 
 from planar_vo.config import LoopConfig
-from planar_vo.core.geometry import largest_sigma, se2_compose, wrap_angle
+from planar_vo.core.geometry import largest_sigma, se2_compose, se2_inverse, wrap_angle
+from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL
 from planar_vo.core.types import CameraIntrinsics
 from planar_vo.frontend.config import FrontendConfig, PlaceConfig
-from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, verify_closure
+from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, prior_distance, verify_closure
 
 
 def compose_covariance(cov_ab: np.ndarray, T_bc, cov_bc: np.ndarray) -> np.ndarray:
@@ -60,10 +61,19 @@ class _Chain:
     kf_rel: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))       # (K, 3) keyframe -> last keyframe
     kf_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))    # (K, 3, 3)
     kf_path: list = field(default_factory=list)
+    #: the same covariances with each step's covariance weighted for the verification prior
+    #: (:meth:`step`'s ``prior_cov``)
+    seg_prior: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    kf_prior: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    #: per keyframe, the segment from the previous one: (pose (3,), prior covariance (3, 3))
+    kf_seg: list = field(default_factory=list)
 
-    def step(self, pose: np.ndarray, cov: np.ndarray) -> None:
+    def step(self, pose: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray | None = None) -> None:
+        """One step ``pose`` (3,) with (3, 3) ``cov``; ``prior_cov``: the covariance it
+        contributes to the verification prior (default ``cov``)."""
         self.path_m += float(math.hypot(pose[0], pose[1]))
         self.seg_cov = compose_covariance(self.seg_cov, pose, cov)
+        self.seg_prior = compose_covariance(self.seg_prior, pose, cov if prior_cov is None else prior_cov)
         self.seg_pose = se2_compose(self.seg_pose, pose)
 
     def relative_to_now(self) -> tuple[np.ndarray, np.ndarray]:
@@ -73,13 +83,129 @@ class _Chain:
         rel = np.array([se2_compose(r, self.seg_pose) for r in self.kf_rel])
         return rel, compose_covariance(self.kf_cov, self.seg_pose, self.seg_cov)
 
-    def new_keyframe(self, rel: np.ndarray, cov: np.ndarray) -> None:
+    def prior_to_now(self) -> np.ndarray:
+        """``(K, 3, 3)`` the verification prior's covariances of :meth:`relative_to_now`'s poses."""
+        if not len(self.kf_prior):
+            return self.kf_prior
+        return compose_covariance(self.kf_prior, self.seg_pose, self.seg_prior)
+
+    def between(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """``T_kf_i_kf_j`` (3,) and its prior covariance (3, 3) along the chain, keyframe
+        positions ``i``, ``j`` (the segments between them composed; inverted when ``j < i``)."""
+        lo, hi = min(i, j), max(i, j)
+        pose, cov = np.zeros(3), np.zeros((3, 3))
+        for seg_pose, seg_cov in self.kf_seg[lo + 1:hi + 1]:
+            cov = compose_covariance(cov, seg_pose, seg_cov)
+            pose = se2_compose(pose, seg_pose)
+        if j >= i:
+            return pose, cov
+        A = gtsam.Pose2(*map(float, pose)).AdjointMap()   # covariance of the inverse
+        return se2_inverse(pose), A @ cov @ A.T
+
+    def new_keyframe(self, rel: np.ndarray, cov: np.ndarray, prior: np.ndarray | None = None) -> None:
         """The current frame becomes a keyframe: every earlier keyframe's relative pose and
-        covariance become ``rel``, ``cov`` (:meth:`relative_to_now`), and the segment restarts."""
+        covariances become ``rel``, ``cov`` (:meth:`relative_to_now`) and ``prior``
+        (:meth:`prior_to_now`, default ``cov``), and the segment restarts."""
         self.kf_rel = np.vstack([rel, np.zeros((1, 3))])
         self.kf_cov = np.concatenate([cov, np.zeros((1, 3, 3))])
+        self.kf_prior = np.concatenate([cov if prior is None else prior, np.zeros((1, 3, 3))])
         self.kf_path.append(self.path_m)
-        self.seg_pose, self.seg_cov = np.zeros(3), np.zeros((3, 3))
+        self.kf_seg.append((self.seg_pose, self.seg_prior))
+        self.seg_pose, self.seg_cov, self.seg_prior = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
+
+
+#: Verdict reason of a closure that disagrees with the latest closure accepted a short drive back.
+INCONSISTENT = "inconsistent"
+#: Closures whose earlier keyframes are further apart than this many keyframes are not
+#: compared (the chain between them costs a composition per keyframe; 100 = 50 m of path).
+CONSISTENCY_MAX_KEYFRAMES = 100
+
+#: A keyframe's Manhattan link whose innovation is beyond this many sigmas is not used by
+#: :class:`_HeldChain` (the graph's robust kernel and pruning deal with such links there).
+HELD_GATE_SIGMAS = 5.0
+
+
+def _compose_many(T: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(K, 3) ``T_k * d_k`` for SE(2) poses ``T`` (K, 3) and ``d`` (K, 3) or (3,)."""
+    c, s = np.cos(T[:, 2]), np.sin(T[:, 2])
+    d = np.broadcast_to(d, T.shape)
+    return np.column_stack([T[:, 0] + c * d[:, 0] - s * d[:, 1], T[:, 1] + s * d[:, 0] + c * d[:, 1],
+                            wrap_angle(T[:, 2] + d[:, 2])])
+
+
+class _HeldChain:
+    """Per earlier keyframe ``a``, the relative pose ``T_base_a_base_now`` and its covariance
+    with the headings held by the Manhattan frames the graph linked at the keyframes: an
+    error-state Kalman filter per keyframe over ``[pose error (3, right perturbation, as
+    gtsam.Pose2), phi_j errors]``, ``phi_j = m_j - theta_a`` the heading of local frame ``j``
+    in ``a``'s frame. Predicted by the chain's segments, updated at every keyframe by its
+    links ``measured = m_j - theta_k`` (Sec. 2.1's drift-free rotation: two keyframes that
+    see the same walls know their relative heading to the walls' sigmas, whatever the path
+    between). The chain alone lets the heading sigma grow along the path, and the
+    translation sigma with path length times it; this is the marginal a keyframe-only
+    graph with Manhattan factors would give for the pair (using only what lies between them).
+    All keyframes at once: (K, 3 + J) arrays, J local frames seen."""
+
+    def __init__(self) -> None:
+        self.pose = np.zeros((0, 3))         # (K, 3) T_a_lastkf
+        self.phi = np.zeros((0, 0))          # (K, J) rad, NaN where a has not met frame j yet
+        self.P = np.zeros((0, 3, 3))         # (K, 3 + J, 3 + J)
+
+    def _grow(self, j: int) -> None:
+        J = self.phi.shape[1]
+        if j < J:
+            return
+        K, n = len(self.pose), j + 1 - J
+        self.phi = np.hstack([self.phi, np.full((K, n), np.nan)])
+        self.P = np.pad(self.P, ((0, 0), (0, n), (0, n)))
+
+    def predict(self, seg_pose: np.ndarray, seg_cov: np.ndarray) -> None:
+        """Every keyframe's relative pose moves on by the segment ``seg_pose`` (3,) with (3, 3) ``seg_cov``."""
+        if not len(self.pose):
+            return
+        A = gtsam.Pose2(*map(float, seg_pose)).inverse().AdjointMap()
+        self.pose = _compose_many(self.pose, seg_pose)
+        P = self.P
+        P[:, :3, :] = np.einsum("ij,kjl->kil", A, P[:, :3, :])
+        P[:, :, :3] = np.einsum("kli,ji->klj", P[:, :, :3], A)
+        P[:, :3, :3] += seg_cov
+
+    def observe(self, j: int, measured: float, sigma: float) -> None:
+        """A link of the newest keyframe to local frame ``j``: ``m_j - theta_now = measured`` (rad), std ``sigma``."""
+        self._grow(j)
+        if not len(self.pose):
+            return
+        P, f = self.P, 3 + j
+        new = np.isnan(self.phi[:, j])
+        # first sight of frame j from keyframe a: it enters the state (phi_j = theta + measured)
+        self.phi[new, j] = self.pose[new, 2] + measured
+        P[new, f, :] = P[new, 2, :]
+        P[new, :, f] = P[new, :, 2]
+        P[new, f, f] = P[new, 2, 2] + sigma * sigma
+        old = np.flatnonzero(~new)
+        Ph = P[old, :, f] - P[old, :, 2]                       # (M, D): P h, h = e_phi_j - e_theta
+        S = Ph[:, f] - Ph[:, 2] + sigma * sigma
+        nu = wrap_angle(measured - (self.phi[old, j] - self.pose[old, 2]))
+        ok = nu * nu <= HELD_GATE_SIGMAS ** 2 * S
+        old, Ph, S, nu = old[ok], Ph[ok], S[ok], nu[ok]
+        G = Ph / S[:, None]
+        dx = G * nu[:, None]
+        self.pose[old] = _compose_many(self.pose[old], dx[:, :3])
+        self.phi[old] = self.phi[old] + np.where(np.isnan(self.phi[old]), 0.0, dx[:, 3:])
+        P[old] -= G[:, :, None] * Ph[:, None, :]
+
+    def new_keyframe(self, links: list) -> None:
+        """Append the newest keyframe (relative pose zero) with its own links ``(j, measured, sigma)``."""
+        for j, _, _ in links:
+            self._grow(j)
+        D = 3 + self.phi.shape[1]
+        P = np.zeros((1, D, D))
+        phi = np.full((1, self.phi.shape[1]), np.nan)
+        for j, measured, sigma in links:
+            phi[0, j], P[0, 3 + j, 3 + j] = measured, sigma * sigma
+        self.pose = np.vstack([self.pose, np.zeros((1, 3))])
+        self.phi = np.vstack([self.phi, phi])
+        self.P = np.concatenate([self.P, P])
 
 
 @dataclass
@@ -102,6 +228,8 @@ class Candidate:
     closure_id: int | None = None
     verify_ms: float = 0.0
     prior_sigma_m: float | None = None  # the odometry prior's largest translation sigma (scaled)
+    chain_sigma_m: float | None = None  # the same for the chain alone (without the Manhattan frames)
+    consistency_d2: float | None = None  # against the latest nearby closure (LoopCloser._consistency)
 
 
 class LoopCloser:
@@ -127,13 +255,20 @@ class LoopCloser:
         self._indexed: list[int] = []             # PlaceIndex position -> keyframe position
         self.candidates: list[Candidate] = []
         self._chain = _Chain()
+        self._held = _HeldChain() if config.prior_heading == "manhattan" else None
+        #: accepted closures in order: (keyframe position a, keyframe position b, pose (3,), covariance (3, 3))
+        self._closed: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        self._now: tuple = ()     # the new keyframe's chain poses and prior covariances while it is verified
         self.time_s: dict[str, float] = {"keyframes": 0.0, "candidates": 0.0, "verify": 0.0}
 
     def offer(self, frame, result, R_lev_cam: np.ndarray) -> None:
         """The pipeline's frame ``frame`` (RGBDFrame) with its front-end ``result``, after the
         graph has added it (the graph's pose index is ``result``'s order in the run)."""
         if result.step is not None:
-            self._chain.step(np.asarray(result.step.pose, float), _covariance(result.step.information))
+            cov = _covariance(result.step.information)
+            guessed = result.step.status in (STATUS_PARTIAL, STATUS_BRIDGED)
+            scale = self.config.guessed_sigma_scale if guessed else self.config.odometry_sigma_scale
+            self._chain.step(np.asarray(result.step.pose, float), cov, scale ** 2 * cov)
         if self.keyframe_frames and not self._keyframe_due():
             return
         t0 = time.perf_counter()
@@ -143,13 +278,20 @@ class LoopCloser:
         t1 = time.perf_counter()
         self.time_s["keyframes"] += t1 - t0
         rel, cov = self._chain.relative_to_now()  # every keyframe -> now, once per keyframe
+        prior_cov = self._chain.prior_to_now()
+        links = self._held_update(kf.index)
         found = self._candidates(kf, rel, cov)
         t2 = time.perf_counter()
         self.time_s["candidates"] += t2 - t1
+        self._now = (rel, prior_cov)
         for pos, cand in found:
-            self._verify(self.keyframes[pos], kf, cand, rel[pos], cov[pos])
+            prior = ((rel[pos], prior_cov[pos]) if self._held is None
+                     else (self._held.pose[pos], self._held.P[pos, :3, :3]))
+            self._verify(self.keyframes[pos], kf, cand, prior, chain_cov=cov[pos], pos=pos)
         self.time_s["verify"] += time.perf_counter() - t2
-        self._chain.new_keyframe(rel, cov)
+        self._chain.new_keyframe(rel, cov, prior_cov)
+        if self._held is not None:
+            self._held.new_keyframe(links)
         self.keyframe_frames.append(kf.index)
         if self.config.forget_closed and any(c.verdict == "accepted" for _, c in found):
             self.keyframes.append(None)  # the place is known: its older keyframe stands for it
@@ -157,6 +299,21 @@ class LoopCloser:
         self.keyframes.append(kf)
         self._indexed.append(len(self.keyframes) - 1)
         self.index.add(kf)
+
+    def _held_update(self, index: int) -> list[tuple[int, float, float]]:
+        """Move the Manhattan-held relative poses to the new keyframe (pose ``index``) and
+        update them with its links; returns the links ``(frame, measured, sigma)``."""
+        if self._held is None:
+            return []
+        get = getattr(self.graph, "manhattan_links", None)
+        links = [(int(lk.frame), float(lk.measured), float(lk.sigma)) for lk in (get() if get else [])
+                 if lk.pose == index]
+        self._held.predict(self._chain.seg_pose, self._chain.seg_prior)
+        # the walls' sigmas are stated by a fit, as the measured steps': scaled alike
+        links = [(j, m, self.config.odometry_sigma_scale * s) for j, m, s in links]
+        for j, measured, sigma in links:
+            self._held.observe(j, measured, sigma)
+        return links
 
     def _keyframe_due(self) -> bool:
         c, ch = self.config, self._chain
@@ -203,15 +360,42 @@ class LoopCloser:
         best = ok[np.argsort(d2[ok])[:c.proximity_candidates]]
         return [(int(k), float(d2[k])) for k in best]
 
-    def _verify(self, a: Keyframe, b: Keyframe, cand: Candidate, chain_pose, chain_cov) -> None:
+    def _consistency(self, pa: int, pose: np.ndarray, cov: np.ndarray) -> float | None:
+        """Squared Mahalanobis distance of a verified closure ``T_a_now`` (``pose`` (3,), ``cov``
+        (3, 3); ``a`` at keyframe position ``pa``) from its prediction through the latest
+        closure ``(a', b')`` accepted within ``consistency_path_m`` of path back: ``T_a_a'``
+        (chain, first pass) * ``T_a'_b'`` (that closure) * ``T_b'_now`` (chain). Two closures
+        a short drive apart must agree, as ORB-SLAM's consistency groups ask, but metrically:
+        on low texture the chain's guessed steps leave the odometry prior metres wide, and a
+        look-alike place a texture period away passed it. None without such a closure."""
+        c, ch = self.config, self._chain
+        if not c.consistency_path_m:
+            return None
+        rel, prior = self._now
+        for qa, qb, zpose, zcov in reversed(self._closed):
+            now = qb >= len(rel)   # a closure of the same new keyframe
+            if not now and ch.path_m - ch.kf_path[qb] > c.consistency_path_m:
+                return None
+            if abs(qa - pa) > CONSISTENCY_MAX_KEYFRAMES:
+                continue
+            T_aa, C_aa = ch.between(pa, qa)
+            T_bn, C_bn = (np.zeros(3), np.zeros((3, 3))) if now else (rel[qb], prior[qb])
+            pred = se2_compose(se2_compose(T_aa, zpose), T_bn)
+            C = compose_covariance(compose_covariance(C_aa, zpose, zcov), T_bn, C_bn)
+            return prior_distance(pose, cov, (pred, C))
+        return None
+
+    def _verify(self, a: Keyframe, b: Keyframe, cand: Candidate, odometry_prior, chain_cov, pos: int) -> None:
         """Verify one pair; an accepted pair becomes a closure factor in the graph. The
-        odometry chain's relative pose ``chain_pose`` (3,) with its covariance ``chain_cov``
-        (3, 3), scaled by ``odometry_sigma_scale``, is the verification's prior: a place that
+        odometry's relative pose and covariance ``odometry_prior`` ((3,), (3, 3): the chain's,
+        or held by the Manhattan frames, ``prior_heading``; measured steps' sigmas scaled by
+        ``odometry_sigma_scale``, guessed ones' by ``guessed_sigma_scale``) is the
+        verification's prior: a place that
         looks the same somewhere else (repeated doors and posters) is ``prior_mismatch``,
         which a redescending graph kernel could not always tell (the chain's robust steps
         give way instead of the closure)."""
         t0 = time.perf_counter()
-        prior = (chain_pose, self.config.odometry_sigma_scale ** 2 * chain_cov)
+        prior = odometry_prior
         check = verify_closure(a, b, self.T_base_cam, self.places, seed=self.seed + len(self.candidates),
                                prior=prior)
         cand.verify_ms = 1000.0 * (time.perf_counter() - t0)
@@ -219,10 +403,16 @@ class LoopCloser:
         cand.verdict, cand.reason = ("accepted" if check.accepted else "rejected"), check.reason
         cand.odometry_d2 = check.prior_d2
         cand.prior_sigma_m = largest_sigma(prior[1][:2, :2])
+        cand.chain_sigma_m = self.config.odometry_sigma_scale * largest_sigma(chain_cov[:2, :2])
         if check.pose is not None:
             cand.pose = [float(v) for v in check.pose]
         if not check.accepted:
             return
+        cand.consistency_d2 = self._consistency(pos, check.pose, check.covariance)
+        if cand.consistency_d2 is not None and cand.consistency_d2 > self.places.prior_gate_chi2:
+            cand.verdict, cand.reason = "rejected", INCONSISTENT
+            return
+        self._closed.append((pos, len(self.keyframe_frames), np.asarray(check.pose, float), check.covariance))
         cand.sigma = [float(v) for v in np.sqrt(np.diag(_covariance(check.information)))]
         cand.closure_id = self.graph.add_closure(a.index, b.index, check.pose, check.information,
                                                  info={"inliers": cand.inliers, "source": cand.source})
