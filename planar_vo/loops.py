@@ -15,8 +15,12 @@ each new keyframe two sources name candidate earlier keyframes:
 
 Keyframes closer than ``recent_path_m`` of travelled path are never candidates (they
 are the same stretch of corridor, seen moments ago). Each candidate is verified with the
-paper's estimators (:func:`planar_vo.frontend.places.verify_closure`) with the chain's
-prediction as its prior (a look-alike place elsewhere is rejected there); an accepted one
+paper's estimators (:func:`planar_vo.frontend.places.verify_closure`) with the odometry's
+prediction as its prior (a look-alike place elsewhere is rejected there): the chain with
+measured steps' sigmas scaled, guessed steps' at their own bounds
+(:func:`step_prior_covariance`), and the headings held by the Manhattan frames linked at
+the keyframes (:class:`_HeldChain`). A verified closure must also agree with the latest
+closure accepted a short drive back (:meth:`LoopCloser._consistency`). An accepted one
 becomes a robust closure factor in the graph, which removes closures that the solution
 does not support. A keyframe that closed a loop is not kept (``forget_closed``). Every
 candidate is listed in the report with its verdict and reason.
@@ -266,9 +270,8 @@ class LoopCloser:
         graph has added it (the graph's pose index is ``result``'s order in the run)."""
         if result.step is not None:
             cov = _covariance(result.step.information)
-            guessed = result.step.status in (STATUS_PARTIAL, STATUS_BRIDGED)
-            scale = self.config.guessed_sigma_scale if guessed else self.config.odometry_sigma_scale
-            self._chain.step(np.asarray(result.step.pose, float), cov, scale ** 2 * cov)
+            self._chain.step(np.asarray(result.step.pose, float), cov,
+                             step_prior_covariance(cov, result.step.status, self.config))
         if self.keyframe_frames and not self._keyframe_due():
             return
         t0 = time.perf_counter()
@@ -447,6 +450,15 @@ class LoopCloser:
     def accepted(self) -> list[tuple[int, int]]:
         """``(a, b)`` pose indices of the closures in the final solution."""
         return [(c.a, c.b) for c in self.candidates if c.verdict == "accepted"]
+
+
+def step_prior_covariance(cov: np.ndarray, status: str, config: LoopConfig) -> np.ndarray:
+    """(3, 3) what a step with stated covariance ``cov`` (3, 3) and front-end ``status``
+    contributes to the verification prior: measured steps (dpp, 2pt) scaled by
+    ``odometry_sigma_scale`` (a fit's sigmas can be optimistic), guessed ones (partial,
+    bridged) by ``guessed_sigma_scale`` (their sigmas are bounds already)."""
+    guessed = status in (STATUS_PARTIAL, STATUS_BRIDGED)
+    return (config.guessed_sigma_scale if guessed else config.odometry_sigma_scale) ** 2 * cov
 
 
 def _count(items) -> dict[str, int]:
