@@ -96,7 +96,8 @@ class LoopConfig:
     #: factors the graph linked at the keyframes (a filter over the chain, per earlier
     #: keyframe), so its sigmas stop growing with the heading drift of the path between;
     #: ``chain`` is the odometry chain alone (its translation sigma grows with path x heading
-    #: sigma: 3.6-4.5 m scaled at lap scale on the 40 m rings, too wide to tell places 10 m apart).
+    #: sigma; on the 40 m tuning rings the measured steps' part is 0.2-0.4 m scaled at lap
+    #: scale, more on longer loops).
     prior_heading: Literal["manhattan", "chain"] = "manhattan"
     #: A new keyframe that closed a loop is not kept: the older keyframe it matched stands
     #: for the place, so memory grows with the area explored, not with the time spent in
