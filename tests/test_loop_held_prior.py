@@ -1,10 +1,14 @@
-"""The loop closer's verification prior with the headings held by the Manhattan frames
-(``loops.prior_heading: manhattan``, :class:`planar_vo.loops._HeldChain`) against the
-odometry chain alone, on simulated rings with known ground truth: the held prior is
-consistent (its errors normalised by its covariance are chi-square with 3 dof) and tight
-enough to reject a look-alike place 10.24 m away (the renderer's texture period) that the
-chain's prior let through; a rendered look-alike pair that verification accepted with the
-chain's prior is rejected with the held one, and a true revisit is still accepted."""
+"""The loop closer's defences against look-alike places, against ground truth:
+
+* the verification prior with the headings held by the Manhattan frames
+  (``loops.prior_heading: manhattan``, :class:`planar_vo.loops._HeldChain`), on simulated
+  rings: consistent (errors normalised by its covariance have a mean chi-square of 3 dof)
+  and tight enough to reject a look-alike a wall-texture period (5.12 m) away that the
+  chain's prior let through;
+* guessed steps at their own sigmas (``loops.guessed_sigma_scale``): a rendered look-alike
+  pair 10.24 m apart (the renderer's texture period) that verification accepted with every
+  step's sigma scaled by 3 is rejected, and a true revisit is still accepted;
+* the check against the latest nearby closure (``loops.consistency_path_m``)."""
 import math
 
 import numpy as np
@@ -20,7 +24,9 @@ from planar_vo.loops import _Chain, _HeldChain, step_prior_covariance  # noqa: E
 
 SCALE = 3.0          # loops.odometry_sigma_scale
 GATE = 16.27         # places.prior_gate_chi2
-STEP_SIGMA = np.array([0.004, 0.002, math.radians(0.25)])   # per 4 cm step: the chain sigma of the tuning rings
+# per 4 cm step; the yaw sigma is ~10x the tuning rings' (0.022 deg), so that the heading
+# dominates the chain's width, as it does on longer loops
+STEP_SIGMA = np.array([0.004, 0.002, math.radians(0.25)])
 LINK_SIGMA = math.radians(0.3)
 
 
