@@ -154,6 +154,9 @@ class OdometryConfig:
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6
+    #: A partial step (yaw known, no whole step) takes its translation also from this many
+    #: 3-D matches agreeing at its yaw (eq. 2), at their own covariance.
+    partial_min_points: int = 3
     #: Matched corners whose depths agree with the same wall or floor in both frames get
     #: them refined by the plane (planar_vo.frontend.pointplanes) for the 1-point
     #: translation: ``plane_sigma_m`` is a fitted plane offset's error; a reading's sigma
