@@ -222,6 +222,26 @@ def test_metric_2pt_covariance_is_consistent(metric_runs):
     assert 1.5 < np.mean(nees) < 6.0  # measured 3.8 (seed 17)
 
 
+def test_metric_2pt_scale_sigma_holds_when_few_matches_have_depth():
+    """An open hall: hundreds of image matches, a dozen with depth, image noise below its
+    model. The scale rests on the depths alone; its stated sigma must match its error.
+    One reduced chi-square for image and depth rows together let the image residuals
+    shrink it (forward errors 2-3x their sigma)."""
+    rng = np.random.default_rng(29)
+    z = []
+    for k in range(40):
+        p = make_planar_problem(rng, 300, motion="forward", noise_px=0.15, depth_noise=0.004, scene_depth=2.0)
+        no_depth = rng.random(300) > 0.06
+        p.P1[no_depth] = np.nan
+        opt = MetricTwoPointOptions(focal_px=F, pixel_sigma=0.5, depth_sigma_const=0.0,
+                                    depth_sigma_quad=0.004 / 2.0, max_error_px=1.5, seed=k)
+        m, info = estimate_planar_motion_2pt_metric(p.x1, p.x2, p.P1, p.P2, opt)
+        assert info.status == "ok"
+        z.append((m.t[2] - p.t[2]) / math.sqrt(info.covariance[2, 2]))
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.5 < rms < 2.0, rms
+
+
 def test_metric_2pt_with_the_levelling_model():
     """Shared 1 deg roll, sideways: with ``refine_levelling`` the metric path corrects images and
     depths alike; off (its default) it keeps the planar fit."""
