@@ -706,18 +706,6 @@ def _metric_residuals(m: _Matches, w_img: float, Q1: np.ndarray, Q2: np.ndarray,
     return e, (np.vstack(jparts) if jac else None)
 
 
-def _covariance(J: np.ndarray, cost: float, dof_params: int) -> np.ndarray:
-    """``(J^T J)^-1`` scaled by the reduced chi-square of the whitened inlier residuals."""
-    m = J.shape[0]
-    A = J.T @ J
-    try:
-        cov = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(A)
-    factor = cost / (m - dof_params) if m > dof_params else 1.0
-    return cov * factor
-
-
 def _blocked_covariance(J: np.ndarray, e: np.ndarray, n_img: int, dof_params: int) -> np.ndarray:
     """``(sum_b J_b^T J_b / f_b)^-1`` over the image rows (the first ``n_img``; none when
     the fit has no Sampson terms) and the depth rows, whitened residuals ``e``. The image
