@@ -308,8 +308,7 @@ class LoopCloser:
         update them with its links; returns the links ``(frame, measured, sigma)``."""
         if self._held is None:
             return []
-        get = getattr(self.graph, "manhattan_links", None)
-        links = [(int(lk.frame), float(lk.measured), float(lk.sigma)) for lk in (get() if get else [])
+        links = [(int(lk.frame), float(lk.measured), float(lk.sigma)) for lk in self.graph.manhattan_links()
                  if lk.pose == index]
         self._held.predict(self._chain.seg_pose, self._chain.seg_prior)
         # the walls' sigmas are stated by a fit, as the measured steps': scaled alike
