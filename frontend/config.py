@@ -176,6 +176,9 @@ class OdometryConfig:
     #: veto needs a disagreement beyond this many combined sigmas and this many degrees.
     dpp_veto_sigmas: float = 4.0
     dpp_veto_min_deg: float = 2.0
+    #: ... and a 2-point motion explaining at least this fraction of the 3-D matches the
+    #: direction-plus-point motion explains (same inlier test): otherwise the walls stand.
+    dpp_veto_support_ratio: float = 1.0
     #: The frame's yaw is checked against eq. 1 applied wall by wall; beyond this many
     #: sigmas the group's walls changed and the wall-by-wall yaw is used.
     wall_yaw_check_sigmas: float = 3.0

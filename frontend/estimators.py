@@ -57,6 +57,7 @@ __all__ = [
     "estimate_planar_motion_2pt",
     "estimate_planar_motion_2pt_metric",
     "estimate_planar_motion_dpp",
+    "count_depth_inliers",
     "PlanarTwoPointEstimator",
     "ransac",
     "levelling_tilt",
@@ -856,6 +857,31 @@ def estimate_planar_motion_dpp(P1, P2, yaw: float, options: DirPointOptions | No
     mask[idx[inl]] = True
     info.inliers = mask
     return PlanarMotion(float(wrap_angle(yaw)), np.array([tx, 0.0, tz])), info
+
+
+def count_depth_inliers(P1, P2, motion: PlanarMotion, options: DirPointOptions | None = None,
+                        depth_scale=None) -> int:
+    """How many 3-D matches a planar motion explains: the direction-plus-point inlier test
+    (``|P2 - R P1 - t|`` (x, z) against the depth and image noise model, ``options.chi2``)
+    applied to a given ``motion`` (``X2 = R_y(yaw) X1 + t``).
+
+    ``P1``, ``P2``: (N, 3) float64 levelled points (metres; rows with NaN or Z <= 0 are
+    ignored); ``depth_scale``: ``(s1 (N,), s2 (N,))`` or None, as for
+    :func:`estimate_planar_motion_dpp`. Scores competing hypotheses on the same data.
+    """
+    opt = options or DirPointOptions()
+    P1 = _as_points("P1", P1, 3, allow_nan=True)
+    P2 = _as_points("P2", P2, 3, allow_nan=True)
+    _check_same("P1", P1, "P2", P2)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
+    if not valid.any():
+        return 0
+    N = P1.shape[0]
+    s1, s2 = (np.ones(N), np.ones(N)) if depth_scale is None else map(np.asarray, depth_scale)
+    _, _, dx, dz, vx, vz = _dpp_candidates(P1[valid], P2[valid], float(motion.yaw), opt, (s1[valid], s2[valid]))
+    t = np.asarray(motion.t, float)
+    return int(((dx - t[0]) ** 2 / vx + (dz - t[2]) ** 2 / vz < opt.chi2).sum())
 
 
 def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions,

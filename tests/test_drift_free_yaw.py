@@ -75,6 +75,38 @@ def test_biased_two_point_yaw_does_not_bend_manhattan_yaw(wobble, monkeypatch):
     assert np.sqrt(np.mean(err[dpp, 1] ** 2)) < 0.002  # and no sideways error from a bent yaw
 
 
+def test_two_point_fit_off_along_the_ambiguity_cannot_veto_the_walls(wobble, monkeypatch):
+    """Mechanism 1, the other way round: a 2-point fit pulled 2.7 deg along the yaw/sideways
+    ambiguity (it still maps points 1.3 m ahead exactly, as five steps at a 37 deg junction
+    of a tuning log did at a stated 0.08 deg) disagrees with the Manhattan yaw beyond the
+    veto gate. It explains fewer 3-D matches than the walls' motion, so the walls stand;
+    before, it vetoed them and entered the chain as 2-point steps 2.6-2.9 deg off."""
+    K, mount, frames = wobble
+    real = odometry_module.estimate_planar_motion_2pt_metric
+    pivot = np.array([0.0, 0.0, 1.3])  # levelled camera frame, metres ahead
+
+    def off_along_ambiguity(*args, **kw):
+        motion, est = real(*args, **kw)
+        if motion is not None:
+            d = math.radians(2.7)
+            R, Rd = g.rot_y(motion.yaw), g.rot_y(motion.yaw + d)
+            motion.t = np.asarray(motion.t, float) + (R - Rd) @ pivot
+            motion.yaw += d
+        return motion, est
+
+    monkeypatch.setattr(odometry_module, "estimate_planar_motion_2pt_metric", off_along_ambiguity)
+    odo = PlanarOdometry(K, mount)
+    results = [odo.process(f.rgbd) for f in frames]
+    err, status = _step_errors(results, frames)
+    checks = [r.diagnostics.yaw_check for r in results[1:] if r.diagnostics.yaw_check]
+    assert sum("dpp_support" in c for c in checks) >= 0.6 * len(status)  # the gate was crossed
+    assert all(c["dpp_support"] > c["two_point_support"] for c in checks if "dpp_support" in c)
+    dpp = np.array([s == STATUS_DPP for s in status])
+    assert dpp.sum() >= 0.8 * len(status)
+    heading = np.degrees(np.cumsum(err[1:, 2]))  # the first step is 2-point (young track)
+    assert np.abs(heading).max() < 0.3
+
+
 def test_direction_plus_point_states_the_uncertainty_of_a_heading_difference(wobble):
     """Honest uncertainty: the direction-plus-point yaw is a *difference* of two views of
     the same walls (eq. 1), so the walls' systematic errors and the levelling floor, common

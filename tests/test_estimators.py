@@ -11,6 +11,7 @@ from planar_vo.frontend.estimators import (
     MetricTwoPointOptions,
     TwoPointOptions,
     _Matches,
+    count_depth_inliers,
     _sampson_residuals_2,
     _sampson_tilted,
     estimate_planar_motion_2pt,
@@ -18,6 +19,7 @@ from planar_vo.frontend.estimators import (
     estimate_planar_motion_dpp,
     sampson_errors,
 )
+from planar_vo.frontend.solvers import PlanarMotion
 from planar_vo.sim.problems import make_planar_problem
 from planar_vo.core.geometry import rot_x, rot_y, rot_z, wrap_angle
 
@@ -298,6 +300,23 @@ def test_dpp_yaw_error_propagates_into_translation_covariance():
     # first-order prediction of the bias from the covariance's cross terms
     pred = info.covariance[1:, 0] / info.covariance[0, 0] * dyaw
     np.testing.assert_allclose([m.t[0] - p.t[0], m.t[2] - p.t[2]], pred, atol=3e-4)
+
+
+def test_count_depth_inliers_prefers_the_true_motion_over_one_off_along_the_ambiguity():
+    """The veto's tie-break: the true motion explains the inlier matches; a motion 2.7 deg
+    off that still maps points at the mean depth exactly explains far fewer."""
+    rng = np.random.default_rng(23)
+    p = make_planar_problem(rng, 200, noise_px=0.5, outlier_ratio=0.2, depth_noise=0.002, scene_depth=2.0)
+    opt = DirPointOptions(focal_px=F)
+    true = PlanarMotion(p.yaw, np.asarray(p.t, float))
+    n_true = count_depth_inliers(p.P1, p.P2, true, opt)
+    assert n_true >= 0.9 * p.inliers.sum() and n_true <= p.inliers.sum() + 5
+    d, pivot = math.radians(2.7), np.array([0.0, 0.0, 2.0])
+    off = PlanarMotion(p.yaw + d, true.t + (rot_y(p.yaw) - rot_y(p.yaw + d)) @ pivot)
+    assert count_depth_inliers(p.P1, p.P2, off, opt) < 0.5 * n_true
+    P1 = p.P1.copy()
+    P1[:50] = np.nan  # rows without depth never count
+    assert count_depth_inliers(P1, p.P2, true, opt) <= n_true - (p.inliers[:50].sum() - 2)
 
 
 def test_dpp_degenerate_inputs():
