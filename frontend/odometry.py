@@ -201,11 +201,11 @@ def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_pri
     return [(n, wd / w, 1.0 / w) for n, wd, w in merged]
 
 
-def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior: float) -> tuple[np.ndarray, np.ndarray]:
+def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior) -> tuple[np.ndarray, np.ndarray]:
     """Levelled translation ``(t_x, t_z)`` (2,) and its (2, 2) covariance from
-    :func:`wall_constraints` and an isotropic prior ``t_prior`` (2,), ``sigma_prior`` (m),
-    which keeps what no wall observes (information form)."""
-    A = np.eye(2) / sigma_prior ** 2
+    :func:`wall_constraints` and a prior ``t_prior`` (2,) with ``sigma_prior`` (m, one value
+    or per axis (2,)), which keeps what no wall observes (information form)."""
+    A = np.diag(1.0 / np.broadcast_to(np.asarray(sigma_prior, dtype=float), (2,)) ** 2)
     b = A @ t_prior
     for n, delta, var in constraints:
         A += np.outer(n, n) / var
@@ -248,13 +248,15 @@ class PlanarOdometry:
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         self._measured_t: list[np.ndarray] = []  # the last measured steps' levelled t, for the guess
+        self._measured_yaw: list[float] = []     # ... and their yaws (rad)
+        self._measured_sd: list[np.ndarray] = []  # ... and their sigmas (yaw rad, t_x, t_z m)
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
         # steps since the translation / yaw was last measured, and the frame interval, for
         # the uncertainty of a constant-velocity guess (see _bridge_sigmas)
         self._since_t = 0
         self._since_yaw = 0
-        self._last_t_sigma = 0.0  # m, the last measured translation's sigma (levelled, larger axis)
+        self._last_t_sigma = np.zeros(2)  # m, the guessed translation's own sigma (levelled x, z)
         self._last_stamp: float | None = None
         self._dt = 0.1
         self.last_detection: PlaneDetection | None = None
@@ -651,7 +653,7 @@ class PlanarOdometry:
             self._since_yaw += 1
             # levelled (yaw, t_x, t_z), propagated like every other step: a camera ahead
             # of base_link swings sideways with the yaw the guess gets wrong
-            cov = np.diag([s_theta ** 2, sb ** 2, sb ** 2])
+            cov = np.diag([s_theta ** 2, sb[0] ** 2, sb[1] ** 2])
             pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
             info.bridge = how
             return Step(pose, np.linalg.inv(cov_b), STATUS_BRIDGED, 0), (yaw, t, s_theta ** 2)
@@ -682,12 +684,12 @@ class PlanarOdometry:
         self._last_motion = (float(mf_yaw[2]), np.array(t if measured else self._last_motion[1], dtype=float))
         if len(walls) >= 2:
             self._since_t = 0
-            self._last_t_sigma = geometry.largest_sigma(cov[1:, 1:])
+            self._last_t_sigma = np.sqrt(np.diag(cov[1:, 1:]))
         elif how == "zero":
             # the zero guess along the wall was never measured: the guesses copying it keep
             # the bridge's full sigma (a ring started at cruise speed lost 1.9 m over 55
             # such steps stated at 2-26 cm)
-            self._last_t_sigma = c.bridge_sigma_xy
+            self._last_t_sigma = np.full(2, c.bridge_sigma_xy)
         return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
 
     def _point_translation(self, pts, yaw: float, known, info) -> tuple[list[tuple[np.ndarray, float, float]], int]:
@@ -719,38 +721,50 @@ class PlanarOdometry:
         return [(np.array([1.0, 0.0]), float(motion.t[0]), float(cov[1, 1])),
                 (np.array([0.0, 1.0]), float(motion.t[2]), float(cov[2, 2]))], int(est.num_inliers)
 
-    def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
-        """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.
+    def _bridge_sigmas(self, nothing_known: bool) -> tuple[np.ndarray, float]:
+        """Sigmas of a constant-velocity guess: translation (m, levelled x and z, (2,)) and yaw (rad).
 
-        The guess errs by the velocity change since the last measurement: with
-        accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
-        intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
-        degree at first, growing while nothing is measured, capped at ``bridge_sigma_xy``
-        / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured). The
-        translation also errs by the copied step's own error (its sigma).
+        The guess errs by the velocity change since the last measurement: ``k`` frame
+        intervals after it, by ``k`` times the change per frame (:meth:`_rate_change`) --
+        a millimetre or two and a few hundredths of a degree at first, growing while nothing
+        is measured, capped at ``bridge_sigma_xy`` / ``bridge_sigma_theta_deg`` (also used
+        when no motion was ever measured). Per axis: a robot's forward speed changes, its
+        sideways one hardly (bridged sideways errors were 0.07 of an isotropic sigma on the
+        tuning seeds). The translation also errs by the copied steps' own error (their sigma).
         """
         c = self.config.odometry
         cap_xy, cap_th = c.bridge_sigma_xy, math.radians(c.bridge_sigma_theta_deg)
         if nothing_known:
-            return cap_xy, cap_th
+            return np.full(2, cap_xy), cap_th
         dt2 = self._dt * self._dt
-        # plus the error of the measured steps the guess copies (it repeats in every guess)
-        s_xy = min(max(math.hypot(self._velocity_change(c.bridge_accel_xy * dt2) * self._since_t,
-                                  self._last_t_sigma), c.min_sigma_xy), cap_xy)
-        s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
-                       math.radians(c.min_sigma_theta_deg)), cap_th)
+        sd = np.asarray(self._measured_sd) if self._measured_sd else np.zeros((0, 3))
+        # a robot seen cruising may still brake or speed up while unseen: forward, never
+        # less than half the largest acceleration (a textureless hall's bridged stop ran
+        # 72 mm off); a wheeled robot's sideways step changes only as it turns
+        dv = np.maximum(self._rate_change(self._measured_t, sd[:, 1:], c.bridge_accel_xy * dt2),
+                        [0.0, 0.5 * c.bridge_accel_xy * dt2])
+        s_xy = np.clip(np.hypot(dv * self._since_t, self._last_t_sigma), c.min_sigma_xy, cap_xy)
+        dw = self._rate_change([np.array([y, y]) for y in self._measured_yaw], sd[:, [0, 0]],
+                               math.radians(c.bridge_accel_theta_deg) * dt2)[0]
+        s_th = min(max(dw * (self._since_yaw + 1), math.radians(c.min_sigma_theta_deg)), cap_th)
         return s_xy, s_th
 
-    def _velocity_change(self, cap: float) -> float:
-        """Metres per frame by which the translation per frame changes: the RMS of the
-        differences of the measured steps in the guess's window (their own errors included),
-        at most ``cap`` (``bridge_accel_xy dt^2``, the platform's largest acceleration). A
-        robot cruising steadily changes its step by its measurement noise, a millimetre or
-        two at 10 Hz, not the 5 mm the largest acceleration allows."""
-        if len(self._measured_t) < 3:
-            return cap
-        d = np.diff(np.asarray(self._measured_t)[:, [0, 2]], axis=0)
-        return min(float(np.sqrt((d * d).sum(1).mean())), cap)
+    @staticmethod
+    def _rate_change(measured: list, sigmas: np.ndarray, cap: float) -> np.ndarray:
+        """Per levelled axis (x, z), how much the motion per frame changes from one frame to
+        the next: the RMS of the differences of the measured steps in the guess's window,
+        less what their own errors (``sigmas`` (n, 2)) put into a difference, each at most
+        ``cap`` (the platform's largest acceleration times ``dt^2``). A robot cruising
+        steadily changes its step by well under a millimetre at 10 Hz, not the 5 mm the
+        largest acceleration allows, and its turn rate by hundredths of a degree, not 0.3:
+        2-point steps 6 mm apart from their noise alone made the guess's sigma 2.4 times
+        its error on the tuning halls. The guessed steps' errors are stated by the copied
+        steps' own sigma (:meth:`_bridge_sigmas`)."""
+        if len(measured) < 3:
+            return np.full(2, cap)
+        d = np.diff(np.asarray(measured)[:, [0, -1]], axis=0)
+        noise = (sigmas[:-1] ** 2 + sigmas[1:] ** 2).mean(0) if len(sigmas) == len(measured) else 0.0
+        return np.minimum(np.sqrt(np.maximum((d * d).mean(0) - noise, 0.0)), cap)
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
@@ -771,10 +785,11 @@ class PlanarOdometry:
         # texture) is copied into every guessed step that follows: 68 partial steps in a row
         # on a tuning log (straight_s118) turned one step's error into 3 % of their path.
         self._measured_t = (self._measured_t + [np.asarray(t, dtype=float).copy()])[-c.velocity_window:]
+        self._measured_yaw = (self._measured_yaw + [float(yaw)])[-c.velocity_window:]
+        self._measured_sd = (self._measured_sd + [np.sqrt(np.diag(cov))])[-c.velocity_window:]
         self._last_motion = (float(yaw), np.mean(self._measured_t, axis=0))
         # the guess averages the window: one step's error enters it divided by its length
-        self._last_t_sigma = math.hypot(geometry.largest_sigma(cov[1:, 1:]), c.min_sigma_xy) / math.sqrt(
-            len(self._measured_t))
+        self._last_t_sigma = np.sqrt(np.diag(cov[1:, 1:]) + c.min_sigma_xy ** 2) / math.sqrt(len(self._measured_t))
         self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)
