@@ -187,7 +187,10 @@ class OdometryConfig:
     wall_match_deg: float = 3.0
     wall_match_m: float = 0.15
     wall_min_support: float = 0.03   # image fraction of a wall used for translation
-    wall_min_sigma_m: float = 0.002  # floor on the sigma of a wall offset difference d2 - d1 (model error)
+    #: floor on the sigma of a wall offset difference d2 - d1 (model error): at 2 mm, with the
+    #: sideways floor of whole steps on top, partial steps stated 2.9x their sideways errors
+    #: (254 partial steps of tuning logs 3100-3107: normalised RMS 0.35; now 0.54)
+    wall_min_sigma_m: float = 0.0015
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1

@@ -669,7 +669,9 @@ class PlanarOdometry:
         t = np.array([t_xz[0], 0.0, t_xz[1]])
         cov = np.zeros((3, 3))
         cov[0, 0] = sigma_yaw ** 2
-        cov[1:, 1:] = cov_t + np.eye(2) * c.min_sigma_xy ** 2
+        # the floor is for what a 1-point fit cannot see (levelling errors push it sideways);
+        # a side wall measures the sideways motion directly, and the guess states its own
+        cov[1:, 1:] = cov_t + np.diag([0.0, c.min_sigma_xy ** 2])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         info.partial = {"prior": how, "walls": n_walls, "points": n_points}
         # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
