@@ -247,6 +247,7 @@ class PlanarOdometry:
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         self._measured_t: list[np.ndarray] = []  # the last measured steps' levelled t, for the guess
+        self._measured_at: list[int] = []        # and the frames (self._n) they were measured in
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
         # steps since the translation / yaw was last measured, and the frame interval, for
@@ -737,6 +738,21 @@ class PlanarOdometry:
         d = np.diff(np.asarray(self._measured_t)[:, [0, 2]], axis=0)
         return min(float(np.sqrt((d * d).sum(1).mean())), cap)
 
+    def _remember_translation(self, t: np.ndarray) -> None:
+        """Keep the measured levelled ``t`` (3,) of this frame for the constant-velocity guess
+        of the next partial or bridged steps: the mean of the translations measured in the
+        last ``velocity_window`` frames. A single step's error (1-3 mm on low texture) is
+        copied into every guessed step that follows: 68 partial steps in a row on a tuning
+        log (straight_s118) turned one step's error into 3 % of their path. Measurements
+        older than the window describe an older velocity: where partial steps alternated with
+        measured ones the last five measured spanned 10-15 frames, and a robot braking to
+        a stop in 1 s was guessed 6-18 mm a step too fast (a low-texture tuning log's last
+        14 steps, 9 cm)."""
+        w = self.config.odometry.velocity_window
+        keep = [k for k, n in enumerate(self._measured_at) if self._n - n < w]
+        self._measured_t = [self._measured_t[k] for k in keep] + [np.asarray(t, dtype=float).copy()]
+        self._measured_at = [self._measured_at[k] for k in keep] + [self._n]
+
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
         c = self.config.odometry
@@ -751,11 +767,7 @@ class PlanarOdometry:
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds).
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, c.min_sigma_xy ** 2, math.radians(c.min_sigma_theta_deg) ** 2])
-        # The constant-velocity guess of the next partial or bridged steps: the mean of the
-        # last velocity_window measured translations. A single step's error (1-3 mm on low
-        # texture) is copied into every guessed step that follows: 68 partial steps in a row
-        # on a tuning log (straight_s118) turned one step's error into 3 % of their path.
-        self._measured_t = (self._measured_t + [np.asarray(t, dtype=float).copy()])[-c.velocity_window:]
+        self._remember_translation(t)
         self._last_motion = (float(yaw), np.mean(self._measured_t, axis=0))
         # the guess averages the window: one step's error enters it divided by its length
         self._last_t_sigma = math.hypot(geometry.largest_sigma(cov[1:, 1:]), c.min_sigma_xy) / math.sqrt(
