@@ -132,10 +132,16 @@ class FeatureConfig:
     orb_max_hamming: int = 64
     depth_window: int = 1            # depth from a (2w+1)^2 neighbourhood
     depth_edge_rel: float = 0.03     # reject if the neighbourhood spans more than this (relative)
+    #: A corner's depth is dropped when LK's window (klt_window) spans a depth jump: its
+    #: inverse depth, less a plane, spreads by more than this fraction (features.
+    #: straddles_depth_jump; occlusion corners slide along the edge). 0 disables.
+    occlusion_rel: float = 0.1
 
     def __post_init__(self) -> None:
         _positive("features", max_corners=self.max_corners, klt_window=self.klt_window,
                   orb_features=self.orb_features, depth_edge_rel=self.depth_edge_rel)
+        if not self.occlusion_rel >= 0:
+            raise ConfigError("config key 'features.occlusion_rel' must be >= 0 (0 disables)")
 
 
 @dataclass
@@ -213,7 +219,7 @@ class OdometryConfig:
     bridge_sigma_xy: float = 1.0     # metres
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
-    velocity_window: int = 5         # measured steps averaged into the constant-velocity guess
+    velocity_window: int = 5         # frames whose measured steps are averaged into the constant-velocity guess
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised

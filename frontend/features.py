@@ -97,6 +97,43 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     return out
 
 
+def straddles_depth_jump(px: np.ndarray, depth: np.ndarray, half: int, max_rel: float,
+                         depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE) -> np.ndarray:
+    """True (N,) where the ``(2 half + 1)^2`` window around pixel ``px`` (N, 2) spans a
+    depth discontinuity: the readings' inverse depth, less its least-squares plane in the
+    pixel coordinates (a planar surface's inverse depth is affine in them, slanted floors
+    included), spreads by more than ``max_rel`` of the centre's.
+
+    LK tracks the window as one image motion. A window holding a near edge and the
+    surface behind it holds two (parallax), and its corner -- mostly a T-junction where
+    a box's silhouette crosses the skirting or the grout behind it, the strongest corners
+    of a plain corridor -- is no world point: it slides along the edge. On the
+    low-texture tuning logs such corners moved 2-6 px a frame beyond their true motion,
+    each making its direction-plus-point candidate ~13 mm (half a step) long, and with
+    6-9 inliers two or three of them made the steps 15-30 % long, all the same way.
+    Readings outside ``depth_range`` (m) are left out; ``depth`` (H, W) float32 m.
+    """
+    n = len(px)
+    if n == 0 or half <= 0:
+        return np.zeros(n, bool)
+    h, w = depth.shape
+    cols = np.clip(np.rint(px[:, 0]).astype(np.int64), half, w - 1 - half)
+    rows = np.clip(np.rint(px[:, 1]).astype(np.int64), half, h - 1 - half)
+    off = np.arange(-half, half + 1)
+    win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
+    win = win.reshape(n, -1).astype(np.float64)
+    ok = (win >= depth_range[0]) & (win <= depth_range[1])
+    inv = np.where(ok, 1.0 / np.where(ok, win, 1.0), 0.0)
+    du, dv = np.meshgrid(off, off)
+    A = np.stack([np.ones(du.size), du.ravel(), dv.ravel()], axis=1).astype(np.float64)  # (K, 3)
+    wt = ok.astype(np.float64)
+    M = (wt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(n, 3, 3) + np.eye(3) * 1e-9
+    coef = np.linalg.solve(M, ((wt * inv) @ A)[..., None])[..., 0]
+    res = (inv - coef @ A.T) / np.maximum(np.abs(coef[:, :1]), 1e-12)
+    spread = np.where(ok, res, -np.inf).max(1) - np.where(ok, res, np.inf).min(1)
+    return (ok.sum(1) >= 4) & (spread > max_rel)
+
+
 def _corner_ratio(img: np.ndarray, pts: np.ndarray, half: int) -> np.ndarray:
     """Smaller over larger eigenvalue (N,) of the gradient structure tensor in a
     ``(2 half + 1)``-pixel square around each point (N, 2) of ``img``.
@@ -322,5 +359,11 @@ class FeatureTracker:
         return cur, matches
 
     def _make_set(self, px, depth, desc=None) -> FeatureSet:
+        c = self.config
         xy = undistort(px, self.intrinsics)
-        return FeatureSet(px=px, xy=xy, P_cam=lift(px, xy, depth, self.config, self.depth_range), desc=desc)
+        P = lift(px, xy, depth, c, self.depth_range)
+        if c.occlusion_rel > 0:
+            # a corner whose tracking window spans a depth jump slides along the edge: its
+            # image match may stay, its depth would make the 1-point translation long
+            P[straddles_depth_jump(px, depth, c.klt_window // 2, c.occlusion_rel, self.depth_range)] = np.nan
+        return FeatureSet(px=px, xy=xy, P_cam=P, desc=desc)

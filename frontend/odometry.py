@@ -248,8 +248,9 @@ class PlanarOdometry:
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         self._measured_t: list[np.ndarray] = []  # the last measured steps' levelled t, for the guess
-        self._measured_yaw: list[float] = []     # ... and their yaws (rad)
-        self._measured_sd: list[np.ndarray] = []  # ... and their sigmas (yaw rad, t_x, t_z m)
+        # the last velocity_window measured steps: (frame self._n, levelled t (3,), yaw rad,
+        # sigmas (yaw, t_x, t_z)), for the guess's rate of change (_bridge_sigmas)
+        self._history: list[tuple[int, np.ndarray, float, np.ndarray]] = []
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
         # steps since the translation / yaw was last measured, and the frame interval, for
@@ -739,23 +740,27 @@ class PlanarOdometry:
         if nothing_known:
             return np.full(2, cap_xy), cap_th
         dt2 = self._dt * self._dt
-        sd = np.asarray(self._measured_sd) if self._measured_sd else np.zeros((0, 3))
+        h = self._history
+        at = np.array([e[0] for e in h], dtype=float)
+        sd = np.array([e[3] for e in h]).reshape(-1, 3)
         # a robot seen cruising may still brake or speed up while unseen: forward, never
         # less than half the largest acceleration (a textureless hall's bridged stop ran
         # 72 mm off); a wheeled robot's sideways step changes only as it turns
-        dv = np.maximum(self._rate_change(self._measured_t, sd[:, 1:], c.bridge_accel_xy * dt2),
+        dv = np.maximum(self._rate_change(at, np.array([e[1] for e in h]).reshape(-1, 3)[:, [0, 2]], sd[:, 1:],
+                                          c.bridge_accel_xy * dt2),
                         [0.0, 0.5 * c.bridge_accel_xy * dt2])
         s_xy = np.clip(np.hypot(dv * self._since_t, self._last_t_sigma), c.min_sigma_xy, cap_xy)
-        dw = self._rate_change([np.array([y, y]) for y in self._measured_yaw], sd[:, [0, 0]],
+        dw = self._rate_change(at, np.array([[e[2], e[2]] for e in h]).reshape(-1, 2), sd[:, [0, 0]],
                                math.radians(c.bridge_accel_theta_deg) * dt2)[0]
         s_th = min(max(dw * (self._since_yaw + 1), math.radians(c.min_sigma_theta_deg)), cap_th)
         return s_xy, s_th
 
     @staticmethod
-    def _rate_change(measured: list, sigmas: np.ndarray, cap: float) -> np.ndarray:
-        """Per levelled axis (x, z), how much the motion per frame changes from one frame to
-        the next: the RMS of the differences of the measured steps in the guess's window,
-        less what their own errors (``sigmas`` (n, 2)) put into a difference, each at most
+    def _rate_change(at: np.ndarray, measured: np.ndarray, sigmas: np.ndarray, cap: float) -> np.ndarray:
+        """Per axis (columns of ``measured`` (n, 2), steps measured in frames ``at`` (n,)),
+        how much the motion per frame changes from one frame to the next: the RMS of the
+        differences of the last measured steps, less what their own
+        errors (``sigmas`` (n, 2)) put into a difference, each at most
         ``cap`` (the platform's largest acceleration times ``dt^2``). A robot cruising
         steadily changes its step by well under a millimetre at 10 Hz, not the 5 mm the
         largest acceleration allows, and its turn rate by hundredths of a degree, not 0.3:
@@ -764,9 +769,27 @@ class PlanarOdometry:
         steps' own sigma (:meth:`_bridge_sigmas`)."""
         if len(measured) < 3:
             return np.full(2, cap)
-        d = np.diff(np.asarray(measured)[:, [0, -1]], axis=0)
-        noise = (sigmas[:-1] ** 2 + sigmas[1:] ** 2).mean(0) if len(sigmas) == len(measured) else 0.0
+        # consecutive measured steps, whether or not guessed steps came between: a change
+        # divided by the gap was 2.6 times too sure of the yaw in a textureless hall
+        d = np.diff(measured, axis=0)
+        noise = (sigmas[:-1] ** 2 + sigmas[1:] ** 2).mean(0)
         return np.minimum(np.sqrt(np.maximum((d * d).mean(0) - noise, 0.0)), cap)
+
+    def _remember_translation(self, t: np.ndarray, yaw: float, sd: np.ndarray) -> None:
+        """Keep the measured levelled ``t`` (3,) of this frame, its ``yaw`` (rad) and its
+        sigmas ``sd`` (yaw, t_x, t_z) for the constant-velocity guess
+        of the next partial or bridged steps: the mean of the translations measured in the
+        last ``velocity_window`` frames. A single step's error (1-3 mm on low texture) is
+        copied into every guessed step that follows: 68 partial steps in a row on a tuning
+        log (straight_s118) turned one step's error into 3 % of their path. Measurements
+        older than the window describe an older velocity: where partial steps alternated with
+        measured ones the last five measured spanned 10-15 frames, and a robot braking to
+        a stop in 1 s was guessed 6-18 mm a step too fast (a low-texture tuning log's last
+        14 steps, 9 cm)."""
+        w = self.config.odometry.velocity_window
+        self._history = (self._history + [(self._n, np.asarray(t, dtype=float).copy(), float(yaw),
+                                           np.asarray(sd, dtype=float))])[-w:]
+        self._measured_t = [e[1] for e in self._history if self._n - e[0] < w]
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
@@ -782,13 +805,7 @@ class PlanarOdometry:
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds).
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, c.min_sigma_xy ** 2, math.radians(c.min_sigma_theta_deg) ** 2])
-        # The constant-velocity guess of the next partial or bridged steps: the mean of the
-        # last velocity_window measured translations. A single step's error (1-3 mm on low
-        # texture) is copied into every guessed step that follows: 68 partial steps in a row
-        # on a tuning log (straight_s118) turned one step's error into 3 % of their path.
-        self._measured_t = (self._measured_t + [np.asarray(t, dtype=float).copy()])[-c.velocity_window:]
-        self._measured_yaw = (self._measured_yaw + [float(yaw)])[-c.velocity_window:]
-        self._measured_sd = (self._measured_sd + [np.sqrt(np.diag(cov))])[-c.velocity_window:]
+        self._remember_translation(t, yaw, np.sqrt(np.diag(cov)))
         self._last_motion = (float(yaw), np.mean(self._measured_t, axis=0))
         # the guess averages the window: one step's error enters it divided by its length
         self._last_t_sigma = np.sqrt(np.diag(cov[1:, 1:]) + c.min_sigma_xy ** 2) / math.sqrt(len(self._measured_t))

@@ -19,7 +19,7 @@ from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.graph import PlanarPoseGraph
 from planar_vo.frontend import odometry as odometry_module
 from planar_vo.frontend.odometry import PlanarOdometry
-from planar_vo.core.steps import (STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
+from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameResult,
                                       ManhattanObservation, Step)
 from planar_vo.sim.synth import SynthConfig, write_synth_log
 from synthhelpers import render as _render
@@ -253,8 +253,9 @@ def test_unmeasured_start_speed_keeps_the_bridge_sigma():
     # until a step measures it the speed is unknown: at cruise speed from the first frame the
     # error is the whole step every frame, which no sigma grown from zero covers. A partial
     # step whose few agreeing depths measured its own translation is not a guess, and its
-    # measurement is not copied into the guesses
-    first = status.index(STATUS_DPP)
+    # measurement is not copied into the guesses (the first measured step: direction-plus-
+    # point, or 2-point: corners on depth jumps have no depth, and here the first are 2-point)
+    first = min(status.index(s) for s in (STATUS_DPP, STATUS_2PT) if s in status)
     guessed = partial & np.array([not (r.diagnostics.partial or {}).get("points") for r in results[1:]])
     assert first >= 5 and guessed[:first].sum() >= 3
     assert np.all(sig[:first][guessed[:first], 0] > 0.3), sig[:first, 0]

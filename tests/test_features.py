@@ -163,3 +163,38 @@ def test_klt_drops_tracked_corners_that_became_edges():
     # points of the grout lines, 0.9 px short on average, up to 2 px)
     assert np.abs(err).max() < 0.6
     assert np.median(np.abs(err)) < 0.1
+
+
+def _corridor_depth(rng, h=480, w=640):
+    """Optical-axis depth (h, w) of a camera 0.5 m above a floor, pitched 12 deg down, 0.9 m
+    from a wall on its left, with a box face 1.2 m ahead covering columns 400-639 above
+    row 260 (a near silhouette against the wall and floor), plus Kinect-like noise."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    ray = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1)
+    p = np.radians(12.0)
+    R = np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]])  # camera -> level
+    d = ray @ R.T
+    z = np.full((h, w), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for t in (0.5 / d[..., 1], -0.9 / d[..., 0]):          # floor (level y down), left wall
+            z = np.where((t > 0) & (t < z), t, z)
+    z = np.where(np.isfinite(z), z, 6.0)
+    box = (u >= 400) & (v < 260)
+    z[box] = np.minimum(z[box], 1.2 / d[box][:, 2])
+    z = z * 1.0  # t along a unit-z camera ray is the optical depth
+    z = z + (0.0015 + 0.0015 * z * z) * rng.standard_normal(z.shape)
+    return z.astype(np.float32)
+
+
+def test_windows_across_a_depth_jump_are_flagged_slanted_surfaces_are_not():
+    from planar_vo.frontend.features import straddles_depth_jump
+    depth = _corridor_depth(np.random.default_rng(3))
+    # on the box's left silhouette (column 400) and its bottom edge (row 260): within LK's
+    # 11 x 11 window of the jump to the floor or wall behind
+    edge = np.array([[397.0, 220.0], [403.0, 100.0], [400.0, 200.0], [500.0, 257.0], [600.0, 263.0]])
+    # a slanted floor near and far, the left wall seen obliquely, the floor-wall crease,
+    # the box face, all at least 7 px from the silhouette
+    smooth = np.array([[300.0, 460.0], [300.0, 300.0], [200.0, 280.0], [40.0, 150.0], [80.0, 300.0],
+                       [500.0, 150.0], [392.0, 220.0], [600.0, 268.0]])
+    flags = straddles_depth_jump(np.vstack([edge, smooth]), depth, 5, FeatureConfig().occlusion_rel)
+    assert flags.tolist() == [True] * len(edge) + [False] * len(smooth)
