@@ -121,12 +121,12 @@ def straddles_depth_jump(px: np.ndarray, depth: np.ndarray, half: int, max_rel: 
     rows = np.clip(np.rint(px[:, 1]).astype(np.int64), half, h - 1 - half)
     off = np.arange(-half, half + 1)
     win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
-    win = win.reshape(n, -1).astype(np.float64)
+    win = win.reshape(n, -1).astype(np.float32)
     ok = (win >= depth_range[0]) & (win <= depth_range[1])
-    inv = np.where(ok, 1.0 / np.where(ok, win, 1.0), 0.0)
+    inv = np.where(ok, 1.0 / np.where(ok, win, 1.0), 0.0).astype(np.float32)
     du, dv = np.meshgrid(off, off)
-    A = np.stack([np.ones(du.size), du.ravel(), dv.ravel()], axis=1).astype(np.float64)  # (K, 3)
-    wt = ok.astype(np.float64)
+    A = np.stack([np.ones(du.size), du.ravel(), dv.ravel()], axis=1).astype(np.float32)  # (K, 3)
+    wt = ok.astype(np.float32)
     M = (wt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(n, 3, 3) + np.eye(3) * 1e-9
     coef = np.linalg.solve(M, ((wt * inv) @ A)[..., None])[..., 0]
     res = (inv - coef @ A.T) / np.maximum(np.abs(coef[:, :1]), 1e-12)
@@ -365,5 +365,7 @@ class FeatureTracker:
         if c.occlusion_rel > 0:
             # a corner whose tracking window spans a depth jump slides along the edge: its
             # image match may stay, its depth would make the 1-point translation long
-            P[straddles_depth_jump(px, depth, c.klt_window // 2, c.occlusion_rel, self.depth_range)] = np.nan
+            # (only corners that have a depth to lose are tested: a third of the test's cost)
+            has = np.flatnonzero(np.isfinite(P[:, 2]))
+            P[has[straddles_depth_jump(px[has], depth, c.klt_window // 2, c.occlusion_rel, self.depth_range)]] = np.nan
         return FeatureSet(px=px, xy=xy, P_cam=P, desc=desc)
