@@ -150,6 +150,10 @@ def test_bench_run_rejects_a_missing_log(tmp_path):
     bench.add_arguments(p)
     with pytest.raises(InputError, match="no such log"):
         bench.main(p.parse_args([str(tmp_path / "nope.mcap")]))
+    # a log the run itself refuses (a folder without rgb.txt): the child's one-line reason,
+    # as bad input, not an internal error
+    with pytest.raises(InputError, match="rgb.txt is missing"):
+        bench.main(p.parse_args([str(tmp_path), "--repeat", "1"]))
 
 
 @pytest.fixture(scope="module")

@@ -112,6 +112,10 @@ def _run_child(log: Path, out: Path, args: argparse.Namespace) -> dict:
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         tail = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
+        if proc.returncode == 2:  # bad input, said in one line by the child
+            from planar_vo.core.errors import InputError
+
+            raise InputError(tail)
         raise RuntimeError(f"{log}: the run failed: {tail}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -247,6 +251,12 @@ if __name__ == "__main__":
         p.add_argument("--online", action="store_true")
         p.add_argument("--frames", type=int, default=None)
         a = p.parse_args(sys.argv[2:])
-        print(json.dumps(_child(a.log, a.out, a.config, a.online, a.frames)))
+        from planar_vo.core.errors import InputError
+
+        try:
+            print(json.dumps(_child(a.log, a.out, a.config, a.online, a.frames)))
+        except InputError as exc:  # the user's input, not a defect: one line, exit 2
+            print(exc, file=sys.stderr)
+            sys.exit(2)
         sys.exit(0)
     sys.exit(2)
