@@ -195,7 +195,8 @@ class OdometryConfig:
     wall_min_support: float = 0.03   # image fraction of a wall used for translation
     #: floor on the sigma of a wall offset difference d2 - d1 (model error): at 2 mm, with the
     #: sideways floor of whole steps on top, partial steps stated 2.9x their sideways errors
-    #: (254 partial steps of tuning logs 3100-3107: normalised RMS 0.35; now 0.54)
+    #: (254 partial steps of tuning logs 3100-3107: normalised RMS 0.35 -> 0.54 with this
+    #: floor and none sideways on partial steps, A/B at 8ed9658; 0.61 over 334 at 3e78abf)
     wall_min_sigma_m: float = 0.0015
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).

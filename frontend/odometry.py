@@ -201,11 +201,11 @@ def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_pri
     return [(n, wd / w, 1.0 / w) for n, wd, w in merged]
 
 
-def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior) -> tuple[np.ndarray, np.ndarray]:
+def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior: float) -> tuple[np.ndarray, np.ndarray]:
     """Levelled translation ``(t_x, t_z)`` (2,) and its (2, 2) covariance from
-    :func:`wall_constraints` and a prior ``t_prior`` (2,) with ``sigma_prior`` (m, one value
-    or per axis (2,)), which keeps what no wall observes (information form)."""
-    A = np.diag(1.0 / np.broadcast_to(np.asarray(sigma_prior, dtype=float), (2,)) ** 2)
+    :func:`wall_constraints` and an isotropic prior ``t_prior`` (2,), ``sigma_prior`` (m),
+    which keeps what no wall observes (information form)."""
+    A = np.eye(2) / sigma_prior ** 2
     b = A @ t_prior
     for n, delta, var in constraints:
         A += np.outer(n, n) / var
@@ -247,9 +247,8 @@ class PlanarOdometry:
                                               seed=o.seed)
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
-        self._measured_t: list[np.ndarray] = []  # the last measured steps' levelled t, for the guess
-        # the last velocity_window measured steps: (frame self._n, levelled t (3,)), for the
-        # guess's rate of change (_bridge_sigmas)
+        # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
+        # and its rate of change (_remember_translation, _bridge_sigmas)
         self._history: list[tuple[int, np.ndarray]] = []
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0
@@ -257,7 +256,7 @@ class PlanarOdometry:
         # the uncertainty of a constant-velocity guess (see _bridge_sigmas)
         self._since_t = 0
         self._since_yaw = 0
-        self._last_t_sigma = np.zeros(2)  # m, the guessed translation's own sigma (levelled x, z)
+        self._last_t_sigma = 0.0  # m, the guessed translation's own sigma (levelled, larger axis)
         self._last_stamp: float | None = None
         self._dt = 0.1
         self.last_detection: PlaneDetection | None = None
@@ -654,7 +653,7 @@ class PlanarOdometry:
             self._since_yaw += 1
             # levelled (yaw, t_x, t_z), propagated like every other step: a camera ahead
             # of base_link swings sideways with the yaw the guess gets wrong
-            cov = np.diag([s_theta ** 2, sb[0] ** 2, sb[1] ** 2])
+            cov = np.diag([s_theta ** 2, sb ** 2, sb ** 2])
             pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
             info.bridge = how
             return Step(pose, np.linalg.inv(cov_b), STATUS_BRIDGED, 0), (yaw, t, s_theta ** 2)
@@ -687,12 +686,12 @@ class PlanarOdometry:
         self._last_motion = (float(mf_yaw[2]), np.array(t if measured else self._last_motion[1], dtype=float))
         if len(walls) >= 2:
             self._since_t = 0
-            self._last_t_sigma = np.sqrt(np.diag(cov[1:, 1:]))
+            self._last_t_sigma = math.sqrt(float(np.max(np.diag(cov[1:, 1:]))))
         elif how == "zero":
             # the zero guess along the wall was never measured: the guesses copying it keep
             # the bridge's full sigma (a ring started at cruise speed lost 1.9 m over 55
             # such steps stated at 2-26 cm)
-            self._last_t_sigma = np.full(2, c.bridge_sigma_xy)
+            self._last_t_sigma = c.bridge_sigma_xy
         return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
 
     def _point_translation(self, pts, yaw: float, known, info) -> tuple[list[tuple[np.ndarray, float, float]], int]:
@@ -724,52 +723,48 @@ class PlanarOdometry:
         return [(np.array([1.0, 0.0]), float(motion.t[0]), float(cov[1, 1])),
                 (np.array([0.0, 1.0]), float(motion.t[2]), float(cov[2, 2]))], int(est.num_inliers)
 
-    def _bridge_sigmas(self, nothing_known: bool) -> tuple[np.ndarray, float]:
-        """Sigmas of a constant-velocity guess: translation (m, levelled x and z, (2,)) and yaw (rad).
+    def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
+        """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.
 
         The guess errs by the velocity change since the last measurement: with
         accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
         intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
         degree at first, growing while nothing is measured, capped at ``bridge_sigma_xy``
         / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured). The
-        translation's rate of change is measured (:meth:`_rate_change`) when it is smaller,
-        and it also errs by the copied steps' own error (their sigma).
+        translation's rate of change is measured (:meth:`_velocity_change`) when it is
+        smaller, and it also errs by the copied steps' own error (their sigma).
 
-        Both axes get the larger sigma: per axis, with the measured steps' noise taken out of
-        the rate (normalised bridged errors 0.56 / 0.63 / 0.82 instead of 0.41 / 0.07 / 0.25
-        on tuning halls), the partial steps of a low-texture tuning ring trusted their guess
+        One sigma for both axes: per axis, with the measured steps' noise taken out of the
+        rate (normalised bridged errors 0.56 / 0.63 / 0.82 instead of 0.41 / 0.07 / 0.25 on
+        tuning halls), the partial steps of a low-texture tuning ring trusted their guess
         over walls and points and its raw odometry went 2.5 -> 5.3 % off.
         """
         c = self.config.odometry
         cap_xy, cap_th = c.bridge_sigma_xy, math.radians(c.bridge_sigma_theta_deg)
         if nothing_known:
-            return np.full(2, cap_xy), cap_th
+            return cap_xy, cap_th
         dt2 = self._dt * self._dt
-        h = self._history
-        dv = self._rate_change(np.array([e[1] for e in h]).reshape(-1, 3)[:, [0, 2]], c.bridge_accel_xy * dt2)
-        s = min(max(math.hypot(min(float(np.hypot(*dv)), c.bridge_accel_xy * dt2) * self._since_t,
-                               float(np.max(self._last_t_sigma))), c.min_sigma_xy), cap_xy)
+        s_xy = min(max(math.hypot(self._velocity_change(c.bridge_accel_xy * dt2) * self._since_t,
+                                  self._last_t_sigma), c.min_sigma_xy), cap_xy)
         s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
                        math.radians(c.min_sigma_theta_deg)), cap_th)
-        return np.full(2, s), s_th
+        return s_xy, s_th
 
-    @staticmethod
-    def _rate_change(measured: np.ndarray, cap: float) -> np.ndarray:
-        """Per axis (columns of ``measured`` (n, 2), the last measured steps), by how much the
-        motion per frame changes from one measured step to the next: the RMS of their
-        differences (their own errors included), each at most ``cap`` (the platform's
-        largest acceleration times ``dt^2``). A robot cruising steadily changes its step by
-        its measurement noise, a millimetre or two at 10 Hz, not the 5 mm the largest
-        acceleration allows."""
-        if len(measured) < 3:
-            return np.full(2, cap)
-        d = np.diff(measured, axis=0)
-        return np.minimum(np.sqrt((d * d).mean(0)), cap)
+    def _velocity_change(self, cap: float) -> float:
+        """Metres per frame by which the translation per frame changes: the RMS of the
+        differences of the last measured steps (their own errors included), at most ``cap``
+        (``bridge_accel_xy dt^2``, the platform's largest acceleration). A robot cruising
+        steadily changes its step by its measurement noise, a millimetre or two at 10 Hz,
+        not the 5 mm the largest acceleration allows."""
+        if len(self._history) < 3:
+            return cap
+        d = np.diff(np.array([e[1] for e in self._history])[:, [0, 2]], axis=0)
+        return min(float(np.sqrt((d * d).sum(1).mean())), cap)
 
-    def _remember_translation(self, t: np.ndarray) -> None:
-        """Keep the measured levelled ``t`` (3,) of this frame for the constant-velocity guess
-        of the next partial or bridged steps: the mean of the translations measured in the
-        last ``velocity_window`` frames. A single step's error (1-3 mm on low texture) is
+    def _remember_translation(self, t: np.ndarray) -> list[np.ndarray]:
+        """Keep the measured levelled ``t`` (3,) of this frame; returns the translations the
+        constant-velocity guess of the next partial or bridged steps averages: those
+        measured in the last ``velocity_window`` frames. A single step's error (1-3 mm on low texture) is
         copied into every guessed step that follows: 68 partial steps in a row on a tuning
         log (straight_s118) turned one step's error into 3 % of their path. Measurements
         older than the window describe an older velocity: where partial steps alternated with
@@ -778,7 +773,7 @@ class PlanarOdometry:
         14 steps, 9 cm)."""
         w = self.config.odometry.velocity_window
         self._history = (self._history + [(self._n, np.asarray(t, dtype=float).copy())])[-w:]
-        self._measured_t = [e[1] for e in self._history if self._n - e[0] < w]
+        return [e[1] for e in self._history if self._n - e[0] < w]
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""
@@ -794,10 +789,10 @@ class PlanarOdometry:
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds).
         cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, c.min_sigma_xy ** 2, math.radians(c.min_sigma_theta_deg) ** 2])
-        self._remember_translation(t)
-        self._last_motion = (float(yaw), np.mean(self._measured_t, axis=0))
+        recent = self._remember_translation(t)
+        self._last_motion = (float(yaw), np.mean(recent, axis=0))
         # the guess averages the window: one step's error enters it divided by its length
-        self._last_t_sigma = np.sqrt(np.diag(cov[1:, 1:]) + c.min_sigma_xy ** 2) / math.sqrt(len(self._measured_t))
+        self._last_t_sigma = math.sqrt(float(np.max(np.diag(cov[1:, 1:]))) + c.min_sigma_xy ** 2) / math.sqrt(len(recent))
         self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)
