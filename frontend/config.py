@@ -73,12 +73,23 @@ class PlaneConfig:
     refit_iterations: int = 2
     refit_sigmas: float = 3.0        # refits keep points within this many noise sigmas of the fit
     systematic_fraction: float = 0.3  # share of the depth noise assumed correlated across a plane
+    #: Walls are fitted where their depth is at most ``1 - range_margin`` of the sensor's
+    #: range, learnt from the log (PlaneDetector._learn_range): a sensor drops the readings
+    #: its noise pushes past its range, so a wall near it keeps only near-side errors.
+    #: Hall walls 4.4-4.7 m away with a 4.5 m range read 3.3 -> 0.1 deg off as they came
+    #: into range (0.01 deg with the range at 6 m, the same frames rendered again), and
+    #: the direction-plus-point yaw followed that drift step by step. 0.05 (~0.2 m, 2-7
+    #: noise sigmas at 4.5 m) was chosen over 0.1 on the tuning halls (seeds 3100-3107,
+    #: 3200-3207): 0.1 also dropped the walls the return legs need. 0 disables.
+    range_margin: float = 0.05
 
     def __post_init__(self) -> None:
         _positive("planes", stride=self.stride,
                   n_invdepth_bins=self.n_invdepth_bins, n_image_bins=self.n_image_bins,
                   hough_step_deg=self.hough_step_deg, inlier_rel_depth=self.inlier_rel_depth,
                   refit_sigmas=self.refit_sigmas)
+        if not 0.0 <= self.range_margin < 1.0:
+            raise ConfigError(f"config key 'planes.range_margin' must be in [0, 1), got {self.range_margin!r}")
 
 
 @dataclass
@@ -94,8 +105,19 @@ class ManhattanConfig:
     #: Observations at most this uncertain become their track's reference heading for
     #: the direction-plus-point yaw; weaker ones leave the carried reference in place.
     ref_max_sigma_deg: float = 0.35
+    #: Frames are reported to the back-end (Manhattan-frame priors on the heading) only
+    #: if the walls of one of them fill at least this many metres across (Plane.width):
+    #: box faces (synthetic ones 0.3-0.7 m), pillars and rows of pillars are vertical
+    #: planes at any angle, and one a few degrees off the walls' frame joins it and pulls
+    #: the heading. On a small synthetic hall the observations the back-end takes were up
+    #: to 43 deg off the hall's axes, within 0.81 deg with this (tests/test_odometry.py).
+    #: Steps still use them: the heading *change* between two views of one box face is as
+    #: good as a wall's. 0 reports every frame.
+    min_wall_width_m: float = 1.0
 
     def __post_init__(self) -> None:
+        if not self.min_wall_width_m >= 0:
+            raise ConfigError("config key 'manhattan.min_wall_width_m' must be >= 0 (0 reports every frame)")
         _positive("manhattan", group_tol_deg=self.group_tol_deg, min_sigma_deg=self.min_sigma_deg,
                   track_gate_deg=self.track_gate_deg)
 

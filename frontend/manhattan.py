@@ -39,6 +39,7 @@ class LocalFrame:
     std, ``prev_sigma_fit`` its image-to-image part and ``prev_score`` the score it was
     observed with. ``age``: consecutive frames the
     track has been seen (a wall entering the view gives biased headings at first).
+    ``width``: the widest of its walls (m, :attr:`Plane.width`).
     """
 
     heading: float
@@ -55,6 +56,7 @@ class LocalFrame:
     age: int = 1  # consecutive frames the track has been seen, this one included
     sigma_fit: float = math.inf
     prev_sigma_fit: float = math.inf
+    width: float = 0.0  # widest of its walls (m, Plane.width)
 
     def step_sigma(self) -> float:
         """Std (rad) of the direction-plus-point yaw ``heading - prev_heading`` (eq. 1): the
@@ -98,7 +100,7 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
         ws = [walls[j] for j in members]
         heading, sigma, sigma_fit = _mean_heading(ws, centre, floor_sigma)
         frames.append(LocalFrame(float(wrap_quarter(heading)), sigma, float(sum(w.support for w in ws)),
-                                 list(members), sigma_fit=sigma_fit))
+                                 list(members), sigma_fit=sigma_fit, width=max(w.width for w in ws)))
     frames.sort(key=lambda f: -f.score)
     return frames
 

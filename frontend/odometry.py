@@ -325,7 +325,8 @@ class PlanarOdometry:
         mount_yaw = geometry.mount_se2(self.mount.T_base_cam)[2]
         observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
                                              f.score, f.track_id)
-                        for f in frames if f.score >= self.config.manhattan.min_score]
+                        for f in frames if f.score >= self.config.manhattan.min_score
+                        and f.width >= self.config.manhattan.min_wall_width_m]
         timings["total"] = clock() - t_start
         self._n += 1
         return FrameResult(frame.index, frame.stamp, step, observations, timings, info)

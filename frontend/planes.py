@@ -18,6 +18,7 @@ RANSAC over the point cloud.
 """
 from __future__ import annotations
 
+import collections
 import functools
 import math
 from dataclasses import dataclass, field
@@ -40,7 +41,8 @@ class Plane:
     ``normal . X_lev = offset`` with ``offset`` > 0 the camera-plane distance (m).
     ``support``: fraction of the (subsampled) image on the plane; ``n_points`` the count.
     ``rms``: RMS inverse-depth residual (1/m), ``rms_rel`` relative depth. ``extent``:
-    angular width (rad) of the inliers across the image. ``cov_q``: (3, 3) covariance of the fit
+    angular width (rad) of the inliers across the image; ``width`` for walls the same span in
+    metres along the wall (a box face is under a metre wide, a corridor wall is not). ``cov_q``: (3, 3) covariance of the fit
     parameters ``q = normal / offset``. ``inliers``: (K,) int64 indices into the
     flattened subsampled grid (see :attr:`PlaneDetector.grid_shape`).
     """
@@ -56,6 +58,7 @@ class Plane:
     rms_rel: float = 0.0  # RMS relative depth residual
     extent: float = 0.0   # angular width of the inliers along the histogram's image axis (rad)
     systematic: float = 0.0
+    width: float = 0.0    # walls: horizontal width (m) its inliers fill (see _solid_runs)
 
     @property
     def yaw(self) -> float:
@@ -138,6 +141,9 @@ class PlaneDetector:
         self.intrinsics = intrinsics
         self.config = config or PlaneConfig()
         self.depth_range = depth_range  # (min, max) m
+        self.range_max = 0.0  # the sensor's range (m) once learnt, else 0 (see _learn_range)
+        self._far: collections.deque = collections.deque(maxlen=_RANGE_FRAMES)  # farthest reading per frame
+        self._min_wall_w = 0.0
         self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
         self.n_total = self._xy_cam.shape[0]
         step = math.radians(self.config.hough_step_deg)
@@ -185,6 +191,26 @@ class PlaneDetector:
         w = 1.0 / (z[idx].astype(np.float64) * self._zscale[idx])
         return idx, w
 
+    def _learn_range(self, pts: "_Points") -> float:
+        """Learn the sensor's range from this frame's farthest reading; return the least
+        camera inverse depth (1/m) a wall point's *predicted* depth may have (0: no limit).
+
+        A range shows as the same farthest reading frame after frame; a scene's extent
+        (a corridor's end wall, the farthest surface while the robot drives towards it)
+        does not. So :attr:`range_max` is set only once, over the last
+        ``_RANGE_FRAMES`` frames (at least ``_RANGE_MIN_FRAMES``), half of them read
+        within 2 % of their median farthest depth; it is that median.
+        """
+        if len(pts.w):
+            self._far.append(float(1.0 / np.min(pts.w * self._zscale[pts.idx])))
+        if len(self._far) >= _RANGE_MIN_FRAMES:
+            far = np.array(self._far)
+            med = float(np.median(far))
+            if np.mean(np.abs(far - med) <= 0.02 * med) >= 0.5:
+                self.range_max = med
+        m = self.config.range_margin
+        return 1.0 / ((1.0 - m) * self.range_max) if m > 0 and self.range_max > 0 else 0.0
+
     def detect(self, depth: np.ndarray, floor_offset_hint: float | None = None,
                levelled: bool = True, walls: bool = True, floor_seed: Plane | None = None) -> PlaneDetection:
         """Detect horizontal planes (floor first) and walls in ``depth`` (H, W) float32 metres.
@@ -226,6 +252,7 @@ class PlaneDetector:
             elif p.normal[1] < 0:
                 p.kind = CEILING
         found = []
+        self._min_wall_w = self._learn_range(pts)
         if walls:
             rest = pts
             if horizontals:
@@ -262,6 +289,9 @@ class PlaneDetector:
         lo, hi = _percentiles(uu, _EXTENT_QUANTILES)
         plane.extent = float(math.atan(hi) - math.atan(lo))
         plane.systematic = self.config.systematic_fraction
+        if plane.kind == WALL:
+            plane.width = sum(wall_width(plane.normal, plane.offset, a, b, self.depth_range[1])
+                              for a, b in _solid_runs(u[plane.inliers], float(lo), float(hi)))
 
     def _acceptable(self, plane: Plane | None, vertical: bool, max_tilt_deg: float) -> bool:
         c = self.config
@@ -311,6 +341,11 @@ class PlaneDetector:
             # Least squares on the raw points near the line, then refits of the full plane.
             pred = inv_d * (u * math.sin(a) + math.cos(a))
             band = np.flatnonzero(pool & (np.abs(w - pred) < 3.0 * tol * w))
+            if vertical and self._min_wall_w > 0:
+                # Near the sensor's range only the readings whose noise brought them in are
+                # there: such a wall reads 1-3 deg off. Points are kept by the line's depth,
+                # not their own (a cut on their own would truncate the noise the same way).
+                band = band[pred[band] * self._zscale[idx[band]] >= self._min_wall_w]
             if len(band) < min_pts:
                 failures += 1
                 continue
@@ -426,6 +461,46 @@ class PlaneDetector:
                      rms_rel=float(np.sqrt(np.mean(rel[k] ** 2))))
 
 
+#: Columns (bands of the levelled image x) of a wall's inliers that count towards its
+#: width hold at least this fraction of the fullest band's inliers.
+_SOLID_FRACTION = 0.25
+
+
+def _solid_runs(u: np.ndarray, lo: float, hi: float, bands: int = 32, max_gap: int = 2) -> list[tuple[float, float]]:
+    """The parts ``[(a, b), ...]`` of ``[lo, hi]`` covered by solid bands of ``u`` (K,):
+    bands holding at least ``_SOLID_FRACTION`` of the fullest band's points, runs
+    bridging at most ``max_gap`` bands without.
+
+    A vertical plane's inliers also take whatever lies on its extension within the depth
+    tolerance -- another box face in line with it, the thin strips where it crosses the
+    floor -- so the inliers of a 0.4 m box face can span two metres. A surface fills its
+    columns; the strips fill a few rows. The runs are kept apart: their widths add up
+    without the gaps between them (a door taken out as its own layer, pillars in a row).
+    """
+    if not hi > lo or len(u) == 0:
+        return [(lo, hi)]
+    n = np.bincount(np.clip(((u - lo) * (bands / (hi - lo))).astype(np.int64), 0, bands - 1), minlength=bands)
+    k = np.flatnonzero(n >= _SOLID_FRACTION * n.max())
+    cuts = np.flatnonzero(np.diff(k) > max_gap + 1)
+    starts, ends = np.r_[k[0], k[cuts + 1]], np.r_[k[cuts], k[-1]]
+    step = (hi - lo) / bands
+    return [(lo + step * a, lo + step * (b + 1)) for a, b in zip(starts, ends)]
+
+
+def wall_width(normal: np.ndarray, offset: float, lo: float, hi: float, max_depth: float) -> float:
+    """Horizontal distance (m) between the points of a vertical plane seen at levelled
+    image x coordinates ``lo`` and ``hi`` (normalised, X / Z): the rays ``(u, 1) Z`` meet
+    the wall's trace ``n_x X + n_z Z = offset`` at ``Z = offset / (n_x u + n_z)``. Depths
+    beyond ``max_depth`` (a ray grazing the wall) are cut there.
+    """
+    pts = []
+    for u in (lo, hi):
+        den = normal[0] * u + normal[2]
+        z = offset / den if den > offset / max_depth else max_depth
+        pts.append((u * z, z))
+    return float(math.hypot(pts[1][0] - pts[0][0], pts[1][1] - pts[0][1]))
+
+
 @dataclass
 class _Points:
     """Valid grid samples of one frame: grid index, inverse depth, levelled x and y."""
@@ -446,6 +521,10 @@ def _votes(vote_idx: np.ndarray, weight: np.ndarray, size: int) -> np.ndarray:
     return np.bincount(vote_idx[m], weights=np.broadcast_to(weight[:, None], vote_idx.shape)[m],
                        minlength=size)
 
+
+#: Frames over which the sensor's range is learnt (PlaneDetector._learn_range).
+_RANGE_FRAMES = 100
+_RANGE_MIN_FRAMES = 10
 
 #: Quantiles of the inliers' image coordinate that bound a plane's angular extent.
 _EXTENT_QUANTILES = np.array([2.0, 98.0]) / 100.0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planar_vo.core import geometry as g
-from planar_vo.frontend.config import PlaneConfig
+from planar_vo.frontend.config import ManhattanConfig, PlaneConfig
 from planar_vo.frontend.planes import FLOOR, WALL, PlaneDetector
 from planar_vo.core.types import CameraIntrinsics
 
@@ -164,3 +164,78 @@ def test_tum_sample_planes():
                 tracked = planes[k]
             n += 1
     assert n >= 9
+
+
+# --------------------------------------------------------------------- wall widths
+def raycast_rects(K, pitch, roll, rects, floor_h, max_depth=8.0):
+    """Depth (H, W) float32 of vertical rectangles over a floor ``floor_h`` m below the
+    camera. ``rects``: ``[(centre (x, z) lev m, heading rad of the face normal, width m,
+    top above the floor m)]``; each is a face of that width, standing on the floor."""
+    R = g.levelling_rotation(pitch, roll)
+    u, v = np.meshgrid(np.arange(K.width), np.arange(K.height))
+    r = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones(u.shape)], -1).reshape(-1, 3) @ R.T
+    best = np.where(r[:, 1] > 1e-9, floor_h / np.where(r[:, 1] > 1e-9, r[:, 1], 1.0), np.inf)
+    for (cx, cz), yaw, width, top in rects:
+        n = np.array([-math.sin(yaw), 0.0, math.cos(yaw)])      # lev, from lev 2-D (cos, sin)
+        along = np.array([math.cos(yaw), 0.0, math.sin(yaw)])
+        c = np.array([cx, 0.0, cz])
+        den = r @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (c @ n) / den
+        p = r * t[:, None]
+        inside = (np.abs((p - c) @ along) <= width / 2) & (p[:, 1] <= floor_h) & (p[:, 1] >= floor_h - top)
+        best = np.where(inside & (t > 0) & (t < best), t, best)
+    z = np.where(np.isfinite(best), best, 0.0)
+    z[(z > max_depth) | (z < 0)] = 0.0
+    return z.reshape(K.height, K.width).astype(np.float32)
+
+
+def test_wall_width_tells_box_faces_from_walls():
+    """Two 0.4 m box faces turned 7 deg, in line 1.6 m apart (one plane, inliers spanning
+    two metres), measure what they fill, about 0.8 m, and a wall behind measures metres:
+    what keeps box faces out of the Manhattan priors (``manhattan.min_wall_width_m``)."""
+    pitch, roll = math.radians(8.0), 0.0
+    box = math.radians(7.0)
+    # the second face lies on the first one's plane, 1.6 m further along it (lev x, z)
+    c1 = np.array([0.3, 2.2])
+    c2 = c1 - 1.6 * np.array([math.cos(box), math.sin(box)])
+    rects = [(c1, box, 0.4, 0.6), (c2, box, 0.4, 0.6), ((0.0, 4.5), 0.0, 9.0, 3.0)]
+    depth = raycast_rects(K, pitch, roll, rects, floor_h=0.9)
+    det = PlaneDetector(K, R_lev_cam=g.levelling_rotation(pitch, roll)).detect(depth)
+    faces = [w for w in det.walls if abs(math.degrees(float(g.wrap_quarter(w.yaw - box)))) < 1.0]
+    walls = [w for w in det.walls if abs(math.degrees(float(g.wrap_quarter(w.yaw)))) < 1.0]
+    assert len(faces) == 1 and walls, [(math.degrees(w.yaw), w.width) for w in det.walls]
+    # both faces are its inliers (the angular extent spans them), the width only them
+    assert math.degrees(faces[0].extent) > 40.0
+    assert 0.7 < faces[0].width < 0.9 < ManhattanConfig().min_wall_width_m, faces[0].width
+    assert max(w.width for w in walls) > 3.0
+
+
+def test_sensor_range_is_learnt_from_a_repeated_farthest_reading():
+    """A range shows as the same farthest reading frame after frame (the floor's readings
+    stop at 4.5 m); a corridor's end wall the robot drives towards is the farthest
+    surface too, but its depth changes. Only the first becomes ``range_max``, and then
+    walls are fitted where their depth is within ``1 - range_margin`` of it."""
+    pitch, roll = math.radians(8.0), 0.0
+    R = g.levelling_rotation(pitch, roll)
+    wall = ((-math.sin(0.2), 0.0, math.cos(0.2)), 4.1)  # a wall 4.1 m away, partly past the range
+    det = PlaneDetector(K, R_lev_cam=R)
+    for k in range(12):
+        rng = np.random.default_rng(k)
+        depth = raycast(K, pitch, roll, [((0.0, 1.0, 0.0), 0.5), wall], noise=0.0015, rng=rng, max_depth=4.5)
+        found = det.detect(depth).walls
+        assert len(found) == 1
+        grid = depth[det._o::det.config.stride, det._o::det.config.stride].ravel()
+        far = np.percentile(grid[found[0].inliers], 99)
+        if k < 9:  # not learnt yet: the wall is fitted up to the range
+            assert far > 4.4, far
+    assert det.range_max == pytest.approx(4.5, abs=0.01)
+    margin = PlaneConfig().range_margin
+    assert far < (1.0 - margin) * 4.5 + 0.05, far  # then short of it (by the wall's depth, not the readings')
+    approach = PlaneDetector(K, R_lev_cam=R)
+    for k in range(12):
+        end = 6.5 - 0.2 * k
+        depth = raycast(K, pitch, roll, corridor(0.0, h=0.5, end=end))
+        walls = approach.detect(depth).walls
+        assert any(abs(w.offset - end) < 0.05 for w in walls)  # the end wall is always fitted
+    assert approach.range_max == 0.0
