@@ -41,8 +41,9 @@ class Plane:
     ``normal . X_lev = offset`` with ``offset`` > 0 the camera-plane distance (m).
     ``support``: fraction of the (subsampled) image on the plane; ``n_points`` the count.
     ``rms``: RMS inverse-depth residual (1/m), ``rms_rel`` relative depth. ``extent``:
-    angular width (rad) of the inliers across the image; ``width`` for walls the same span in
-    metres along the wall (a box face is under a metre wide, a corridor wall is not). ``cov_q``: (3, 3) covariance of the fit
+    angular width (rad) of the inliers across the image; ``width`` for walls the metres
+    across that its inliers fill (:func:`_solid_runs`; a box face is under a metre wide, a
+    corridor wall is not). ``cov_q``: (3, 3) covariance of the fit
     parameters ``q = normal / offset``. ``inliers``: (K,) int64 indices into the
     flattened subsampled grid (see :attr:`PlaneDetector.grid_shape`).
     """
@@ -143,7 +144,6 @@ class PlaneDetector:
         self.depth_range = depth_range  # (min, max) m
         self.range_max = 0.0  # the sensor's range (m) once learnt, else 0 (see _learn_range)
         self._far: collections.deque = collections.deque(maxlen=_RANGE_FRAMES)  # farthest reading per frame
-        self._min_wall_w = 0.0
         self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
         self.n_total = self._xy_cam.shape[0]
         step = math.radians(self.config.hough_step_deg)
@@ -197,9 +197,9 @@ class PlaneDetector:
 
         A range shows as the same farthest reading frame after frame; a scene's extent
         (a corridor's end wall, the farthest surface while the robot drives towards it)
-        does not. So :attr:`range_max` is set only once, over the last
-        ``_RANGE_FRAMES`` frames (at least ``_RANGE_MIN_FRAMES``), half of them read
-        within 2 % of their median farthest depth; it is that median.
+        does not. So :attr:`range_max` is set when, over the last ``_RANGE_FRAMES``
+        frames (at least ``_RANGE_MIN_FRAMES``), half of them read within 2 % of their
+        median farthest depth: it is that median (and stays once set).
         """
         if len(pts.w):
             self._far.append(float(1.0 / np.min(pts.w * self._zscale[pts.idx])))
@@ -252,7 +252,7 @@ class PlaneDetector:
             elif p.normal[1] < 0:
                 p.kind = CEILING
         found = []
-        self._min_wall_w = self._learn_range(pts)
+        min_wall_w = self._learn_range(pts)
         if walls:
             rest = pts
             if horizontals:
@@ -260,7 +260,7 @@ class PlaneDetector:
                 keep[np.searchsorted(idx, np.concatenate([p.inliers for p in horizontals]))] = False
                 rest = pts.subset(keep)
             found = self._detect_family(rest, self._xbin, self._wall_angles, vertical=True,
-                                        max_planes=c.max_walls, max_tilt_deg=c.wall_tilt_deg)
+                                        max_planes=c.max_walls, max_tilt_deg=c.wall_tilt_deg, min_w=min_wall_w)
         return PlaneDetection(floor, horizontals, found, len(idx), self.n_total)
 
     # ------------------------------------------------------------------ internals
@@ -305,7 +305,10 @@ class PlaneDetector:
         return plane.rms_rel <= 0.45 * c.inlier_rel_depth
 
     def _detect_family(self, pts: "_Points", ubin_all, angles, vertical: bool, max_planes: int,
-                       max_tilt_deg: float) -> list[Plane]:
+                       max_tilt_deg: float, min_w: float = 0.0) -> list[Plane]:
+        """Planes of one family (walls or horizontals), strongest Hough line first. ``min_w``:
+        least camera inverse depth (1/m) of a point's predicted depth (0: any); a cut on the
+        points' own depth would truncate their noise as the sensor's range does."""
         c = self.config
         planes: list[Plane] = []
         min_pts = max(10, int(c.min_support * self.n_total))
@@ -341,11 +344,8 @@ class PlaneDetector:
             # Least squares on the raw points near the line, then refits of the full plane.
             pred = inv_d * (u * math.sin(a) + math.cos(a))
             band = np.flatnonzero(pool & (np.abs(w - pred) < 3.0 * tol * w))
-            if vertical and self._min_wall_w > 0:
-                # Near the sensor's range only the readings whose noise brought them in are
-                # there: such a wall reads 1-3 deg off. Points are kept by the line's depth,
-                # not their own (a cut on their own would truncate the noise the same way).
-                band = band[pred[band] * self._zscale[idx[band]] >= self._min_wall_w]
+            if min_w > 0:  # by the line's depth, not the points' own (see PlaneConfig.range_margin)
+                band = band[pred[band] * self._zscale[idx[band]] >= min_w]
             if len(band) < min_pts:
                 failures += 1
                 continue
