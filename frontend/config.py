@@ -179,6 +179,25 @@ class OdometryConfig:
     #: A pure rotation (every match explained by the yaw alone) gives a partial step its yaw
     #: from this many inliers on (a hall's U-turn with few corners; whole steps: min_inliers).
     yaw_only_min_inliers: int = 10
+    #: The 2-point covariance assumes independent match errors. Matches crowded into a few
+    #: image cells (1/8 of a normalised unit, ~70 px on a qhd Kinect) share theirs: the same
+    #: texture blob, the same far wall, where yaw and sideways motion trade off. Below this
+    #: many occupied cells the yaw's sigma grows as min_cells / cells (measured on the
+    #: halls of tuning seeds 3300-3307: yaw errors 0.10 deg at 13 cells, 0.04 at 32, 0.01
+    #: at 74, all stated at ~0.02 deg).
+    two_point_min_cells: float = 60.0
+    #: The base is wheeled and does not slide sideways (differential drive, Ackermann): the
+    #: 2-point refinement asks each base_link step to follow its heading, at a sigma of
+    #: lateral_floor_m + lateral_slip x the step's length. It resolves the yaw / sideways
+    #: translation ambiguity of far features (not used on pure rotations, whose images do
+    #: not see the translation). 0 turns it off (holonomic bases).
+    #: A 2-point step whose translation departs from the constant-velocity guess by more
+    #: than this many sigmas (its own and the guess's, whose sigma is the platform's
+    #: acceleration limit) is not a measurement: matches agreeing on a wrong motion (a tile
+    #: grid aliased under KLT). 0 turns the gate off.
+    velocity_gate_sigmas: float = 6.0
+    lateral_slip: float = 0.03
+    lateral_floor_m: float = 0.0005
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6
@@ -215,6 +234,9 @@ class OdometryConfig:
     wall_match_deg: float = 3.0
     wall_match_m: float = 0.15
     wall_min_support: float = 0.03   # image fraction of a wall used for translation
+    #: ... and a wall's offset change must agree with the step's guess within this many
+    #: combined sigmas (wall fit and guess): a 10 cm jump stated at 2 mm was another plane.
+    wall_gate_sigmas: float = 5.0
     #: floor on the sigma of a wall offset difference d2 - d1 (model error): at 2 mm, with the
     #: sideways floor of whole steps on top, partial steps stated 2.9x their sideways errors
     #: (254 partial steps of tuning logs 3100-3107: normalised RMS 0.35 -> 0.54 with this
@@ -256,7 +278,12 @@ class OdometryConfig:
 
     def __post_init__(self) -> None:
         _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
-                  velocity_window=self.velocity_window)
+                  velocity_window=self.velocity_window, wall_gate_sigmas=self.wall_gate_sigmas,
+                  two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m)
+        if self.velocity_gate_sigmas < 0:
+            raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
+        if self.lateral_slip < 0:
+            raise ConfigError("config key 'odometry.lateral_slip' must be >= 0 (0 turns the prior off)")
         if self.depth_incidence < 0:
             raise ConfigError("config key 'odometry.depth_incidence' must be >= 0")
 

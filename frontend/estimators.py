@@ -142,6 +142,21 @@ class MetricTwoPointOptions(TwoPointOptions):
     depth_sigma_quad: float = 0.002
     pixel_sigma: float = 0.5
     depth_chi2: float = 9.21
+    #: Wheeled bases do not slide sideways: with ``mount_se2`` (the planar mount, pose of the
+    #: levelled camera in base_link, :func:`planar_vo.core.geometry.mount_se2`) and
+    #: ``lateral_slip`` > 0 the refinement also asks the base_link step to follow its own
+    #: heading, ``y - x tan(theta / 2) = 0`` (the chord of a constant-curvature arc), at
+    #: ``lateral_floor_m + lateral_slip * |t|`` metres. It pins the far-feature ambiguity
+    #: between yaw and sideways translation (:func:`estimate_planar_motion_2pt_metric`).
+    mount_se2: tuple[float, float, float] | None = None
+    lateral_slip: float = 0.0
+    lateral_floor_m: float = 0.001
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not (self.lateral_slip >= 0 and self.lateral_floor_m > 0):
+            raise ConfigError(f"MetricTwoPointOptions.lateral_slip must be >= 0 and lateral_floor_m > 0, "
+                              f"got {self.lateral_slip}, {self.lateral_floor_m}")
 
 
 @dataclass
@@ -707,7 +722,40 @@ def _metric_residuals(m: _Matches, w_img: float, Q1: np.ndarray, Q2: np.ndarray,
     return e, (np.vstack(jparts) if jac else None)
 
 
-def _blocked_covariance(J: np.ndarray, e: np.ndarray, n_img: int, dof_params: int) -> np.ndarray:
+def _base_lateral(p: np.ndarray, m_base_lev: np.ndarray) -> float:
+    """Sideways motion (m) of the base_link step of the levelled motion ``p = (yaw, t_x,
+    t_z)`` off the chord of its heading change: ``y - x tan(theta / 2)`` (zero for a wheeled
+    base on a constant-curvature arc)."""
+    # closed form of lev_step_to_base_step(levelled_motion_to_pose(...)): the levelled step
+    # (-(s tx + c tz), c tx - s tz, th) conjugated by the mount, R_m p + (I - R_th) m (called
+    # ~100 times per refinement, so no arrays)
+    th, tx, tz = float(p[0]), float(p[1]), float(p[2])
+    c, s = math.cos(th), math.sin(th)
+    px, py = -(s * tx + c * tz), c * tx - s * tz
+    mx, my, mpsi = float(m_base_lev[0]), float(m_base_lev[1]), float(m_base_lev[2])
+    cm, sm = math.cos(mpsi), math.sin(mpsi)
+    x = cm * px - sm * py + (1.0 - c) * mx + s * my
+    y = sm * px + cm * py - s * mx + (1.0 - c) * my
+    return y - x * math.tan(0.5 * th)
+
+
+def _with_lateral_prior(fun, m_base_lev: np.ndarray, sigma: float):
+    """``fun`` (:func:`_metric_residuals`) with one more row: :func:`_base_lateral` / sigma."""
+    def g(p, jac):
+        e, J = fun(p, jac)
+        e = np.append(e, _base_lateral(p, m_base_lev) / sigma)
+        if jac:
+            h, row = 1e-7, np.empty(3)
+            for k in range(3):
+                d = np.zeros(3)
+                d[k] = h
+                row[k] = (_base_lateral(p + d, m_base_lev) - _base_lateral(p - d, m_base_lev)) / (2 * h * sigma)
+            J = np.vstack([J, row])
+        return e, J
+    return g
+
+
+def _blocked_covariance(J: np.ndarray, e: np.ndarray, n_img: int, dof_params: int, n_prior: int = 0) -> np.ndarray:
     """``(sum_b J_b^T J_b / f_b)^-1`` over the image rows (the first ``n_img``; none when
     the fit has no Sampson terms) and the depth rows, whitened residuals ``e``. The image
     rows keep the whole fit's reduced chi-square (the yaw they fix is calibrated so); the
@@ -718,15 +766,17 @@ def _blocked_covariance(J: np.ndarray, e: np.ndarray, n_img: int, dof_params: in
     their noise model gives. (Flooring the image rows too widened the yaw sigma the
     weak-scale check reads and let 5-6-depth steps 5-7 cm off through on a tuning hall;
     their own factor alone made pure-rotation yaws on a textureless hall 8 sigma off.)"""
-    m = len(e)
-    f_all = float(e @ e) / (m - dof_params) if m > dof_params else 1.0
+    m = len(e) - n_prior
+    f_all = float(e[:m] @ e[:m]) / (m - dof_params) if m > dof_params else 1.0
     A = np.zeros((J.shape[1], J.shape[1]))
-    for rows, depth in ((slice(0, n_img), False), (slice(n_img, None), True)):
+    for rows, depth in ((slice(0, n_img), False), (slice(n_img, m), True)):
         Jb, eb = J[rows], e[rows]
         if len(eb) == 0:
             continue
         f = max(float(eb @ eb) / max(len(eb) - dof_params, 1), 1.0) if depth else f_all
         A += Jb.T @ Jb / max(f, 1e-12)
+    # prior rows (last n_prior) state their own sigma
+    A += J[m:].T @ J[m:]
     try:
         return np.linalg.inv(A)
     except np.linalg.LinAlgError:
@@ -773,11 +823,22 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     # Sampson terms stay well defined for small non-zero t (they are scale invariant)
     sub = _Matches(x1[inl], x2[inl])
     fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
+    n_prior = 0
+    if opt.lateral_slip > 0 and opt.mount_se2 is not None and info.status == OK:
+        # Far features at one depth leave a valley in which yaw and sideways translation
+        # trade off (dt_x = -Z dyaw): image rows and depth rows alike. A wheeled base's step
+        # follows its heading, which picks the valley's true end (yaw errors of 0.3-0.55 deg
+        # at 25 deg from the forward direction on a low-texture tuning hall, without it).
+        # Not for a pure rotation: its images do not see the translation, whose scale-free
+        # image rows then let the prior shrink it (22 of 23 mm lost on the same hall).
+        sigma = opt.lateral_floor_m + opt.lateral_slip * math.hypot(t0[0], t0[2])
+        fun = _with_lateral_prior(fun, np.asarray(opt.mount_se2, dtype=float), sigma)
+        n_prior = 1
     p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
     info.refine_iterations += its
     info.cost = cost
     e_fit = fun(p, False)[0]
-    info.covariance = _blocked_covariance(J, e_fit, len(e_fit) - 2 * len(Q1), 3)
+    info.covariance = _blocked_covariance(J, e_fit, len(e_fit) - 2 * len(Q1) - n_prior, 3, n_prior)
     info.scale_inliers = scale_inl
     motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
                           pure_rotation=info.status == PURE_ROTATION)

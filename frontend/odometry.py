@@ -173,8 +173,35 @@ def yaw_from_wall_pairs(pairs: list[tuple[Plane, Plane, np.ndarray]], yaw_hint: 
     return yaw_hint + float((wt * d).sum() / wt.sum()), math.sqrt(1.0 / float(wt.sum()))
 
 
+def occupied_cells(x: np.ndarray, cell: float = 0.125) -> int:
+    """Image cells (``cell`` normalised units square) holding at least one of the (N, 2) points."""
+    if len(x) == 0:
+        return 0
+    return len(np.unique(np.floor(np.asarray(x) / cell).astype(np.int64), axis=0))
+
+
+def inflate_crowded_yaw(cov: np.ndarray, x_inliers: np.ndarray, min_cells: float,
+                        depth: float = math.nan) -> np.ndarray:
+    """The 2-point covariance (3, 3) over (yaw, t_x, t_z) with the yaw's sigma scaled by
+    ``min_cells / cells`` when the inliers ``x_inliers`` (N, 2, normalised) occupy fewer
+    than ``min_cells`` image cells (:func:`occupied_cells`). Crowded matches share their
+    errors, which the inlier residuals cannot show: on the low-texture tuning halls the yaw
+    erred 5x its stated sigma, and the sideways translation by -Z times the yaw error (the
+    far-wall ambiguity, ``X2 = R X1 + t`` unchanged). So the variance is added along that
+    direction, ``(1, -depth, 0)``, with ``depth`` (m) the matches' typical depth; without
+    one, to the yaw alone (its correlations scaled with it)."""
+    k = min_cells / max(occupied_cells(x_inliers), 1)
+    if k <= 1.0:
+        return cov
+    if not math.isfinite(depth):
+        d = np.array([k, 1.0, 1.0])
+        return cov * np.outer(d, d)
+    v = np.array([1.0, -depth, 0.0])
+    return cov + (k * k - 1.0) * cov[0, 0] * np.outer(v, v)
+
+
 def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray,
-                     config) -> list[tuple[np.ndarray, float, float]]:
+                     config, sigma_prior: float = math.inf) -> list[tuple[np.ndarray, float, float]]:
     """Translation constraints ``(n (2,), delta, var)`` meaning ``n . t = delta`` (levelled
     ``(t_x, t_z)``, metres) from vertical planes seen in both frames, given the step's yaw.
 
@@ -184,10 +211,19 @@ def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_pri
     only the points that noise brought nearer survive, and the offset is biased). Walls
     with (anti)parallel normals are merged into one constraint: two nearly parallel
     normals would otherwise turn their offset noise into a large motion along the wall.
+
+    ``sigma_prior`` (m): the sigma of ``t_prior`` per axis. A pair whose offset change
+    departs from the prior by more than ``config.wall_gate_sigmas`` combined sigmas is a
+    different plane in one of the views (a box face in front of the wall it stands
+    against), not a measurement: it is left out.
     """
     cos_gate = math.cos(math.radians(config.wall_match_deg))
-    pairs = [(n2, w2.offset - w1.offset, _offset_var_fit(w1) + _offset_var_fit(w2) + config.wall_min_sigma_m ** 2)
-             for w1, w2, n2 in match_walls(walls1, walls2, yaw, t_prior, config, config.wall_max_offset_m)]
+    pairs = []
+    for w1, w2, n2 in match_walls(walls1, walls2, yaw, t_prior, config, config.wall_max_offset_m):
+        delta = w2.offset - w1.offset
+        var = _offset_var_fit(w1) + _offset_var_fit(w2) + config.wall_min_sigma_m ** 2
+        if abs(delta - float(n2 @ t_prior)) <= config.wall_gate_sigmas * math.sqrt(var + sigma_prior ** 2):
+            pairs.append((n2, delta, var))
     merged: list[list] = []  # [n_ref, sum w*delta, sum w] with delta signed along n_ref
     for n, delta, var in pairs:
         for m in merged:
@@ -244,7 +280,8 @@ class PlanarOdometry:
         o = c.odometry
         self._dpp_opt = DirPointOptions(focal_px=intrinsics.fx, max_iterations=o.ransac_iterations, seed=o.seed)
         self._2pt_opt = MetricTwoPointOptions(focal_px=intrinsics.fx, max_error_px=o.ransac_threshold_px,
-                                              seed=o.seed)
+                                              seed=o.seed, lateral_slip=o.lateral_slip,
+                                              lateral_floor_m=o.lateral_floor_m)
         self._prev: _Prev | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
@@ -414,7 +451,7 @@ class PlanarOdometry:
         # the 1-point translation uses the plane-refined depths
         pts = self._on_planes(prev, planes, P1, P2, yaw_prior)
         dpp, mf_yaw = self._dpp(prev, frames, walls, pts, int(depth_ok.sum()), yaw_prior, info)
-        two = self._two_point(x1, x2, P1, P2, info)
+        two = self._two_point(x1, x2, P1, P2, info, mount_se2)
         dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
                     for e in (dpp, two))
         # The veto needs only the 2-point yaw, which a refused scale leaves intact: in an
@@ -431,6 +468,8 @@ class PlanarOdometry:
             if est is None:
                 continue
             motion, e = est[0], est[1]
+            if status == STATUS_2PT and self._velocity_jump(motion.t, e.covariance, info):
+                continue
             step = self._accept(motion.yaw, motion.t, e.covariance, status, e.num_inliers, mount_se2, info)
             if step is not None:
                 if status == STATUS_DPP:
@@ -550,16 +589,27 @@ class PlanarOdometry:
                               "pairs": len(pairs)}
         return y_w, y_w, s_w
 
-    def _two_point(self, x1, x2, P1, P2, info):
-        """2-point homography with metric scale from depth (Sec. 2.2): ``(motion, est)`` or None."""
+    def _two_point(self, x1, x2, P1, P2, info, mount_se2=None):
+        """2-point homography with metric scale from depth (Sec. 2.2): ``(motion, est)`` or None.
+        ``mount_se2`` (3,): the planar mount, for the wheeled base's no-sideways-slip prior
+        (``odometry.lateral_slip``)."""
         c = self.config.odometry
         if len(x1) < 2:
             return None
-        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._2pt_opt)
+        opt = self._2pt_opt
+        if c.lateral_slip > 0 and mount_se2 is not None:
+            opt = replace(opt, mount_se2=tuple(float(v) for v in mount_se2))
+        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, opt)
         n_in = est.num_inliers
+        if motion is not None and est.covariance is not None:
+            z = P1[est.inliers, 2]
+            z = z[np.isfinite(z)]
+            est.covariance = inflate_crowded_yaw(est.covariance, x2[est.inliers], c.two_point_min_cells,
+                                                 float(np.median(z)) if len(z) else math.nan)
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
         info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
-                       "iterations": est.iterations}
+                       "iterations": est.iterations,
+                       "cells": occupied_cells(x2[est.inliers]) if est.inliers is not None else 0}
         # from yaw_only_min_inliers on the estimate may still give a pure rotation's yaw
         # (_weak_scale); a whole step needs min_inliers
         if (motion is not None and n_in >= min(c.min_inliers, c.yaw_only_min_inliers)
@@ -661,7 +711,7 @@ class PlanarOdometry:
         self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
         prior = np.array([t[0], t[2]])
-        walls = wall_constraints(walls1, walls2, yaw, prior, c)
+        walls = wall_constraints(walls1, walls2, yaw, prior, c, sb)
         t_xz, cov_t = translation_from_walls(walls, prior, sb)
         points, n_points = self._point_translation(pts, mf_yaw[2], (t_xz, cov_t), info)
         if points:
@@ -775,6 +825,37 @@ class PlanarOdometry:
         w = self.config.odometry.velocity_window
         self._history = (self._history + [(self._n, np.asarray(t, dtype=float).copy())])[-w:]
         return [e[1] for e in self._history if self._n - e[0] < w]
+
+    def _velocity_jump(self, t: np.ndarray, cov: np.ndarray, info) -> bool:
+        """True when a 2-point translation ``t`` (3,), levelled, with ``cov`` (3, 3) over
+        (yaw, t_x, t_z), departs from the constant-velocity guess by more than
+        ``velocity_gate_sigmas`` of both sigmas (the guess's is the platform's acceleration
+        limit, :meth:`_bridge_sigmas`). Matches that agree on a wrong motion do that: floor
+        tiles' grout grid aliased under KLT gave a tuning loop 2-point steps 36-51 mm off a
+        35.6 mm step (backwards), 2 deg off in yaw. Only while a measured translation is
+        recent (``velocity_window`` frames) and three measured steps give the guess's spread."""
+        c = self.config.odometry
+        w = c.velocity_window
+        if c.velocity_gate_sigmas <= 0 or self._last_motion is None \
+                or not any(self._n - e[0] < w for e in self._history):
+            return False
+        self._since_t += 1  # the guess is for this frame
+        sb = self._bridge_sigmas(False)[0]
+        self._since_t -= 1
+        # ... but a guess is only as steady as the steps it copies: when they disagree among
+        # themselves (a direction-plus-point blunder 31-44 mm sideways just before on a tuning
+        # hall), their spread is the guess's error, and the right 2-point steps after it must
+        # not be refused (bridged, they copied the blunder: raw drift 1.4 -> 3.8 %)
+        sb = max(sb, self._velocity_change(math.inf))
+        if not math.isfinite(sb):
+            return False
+        d = np.array([t[0] - self._last_motion[1][0], t[2] - self._last_motion[1][2]])
+        m2 = float(d @ np.linalg.solve(cov[1:, 1:] + sb * sb * np.eye(2), d))
+        if m2 <= c.velocity_gate_sigmas ** 2:
+            return False
+        info.rejected.append({"status": STATUS_2PT, "velocity_jump_m": float(np.linalg.norm(d)),
+                              "sigmas": math.sqrt(m2)})
+        return True
 
     def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
         """The step of an estimate, or None when its own covariance says it is not determined."""

@@ -240,3 +240,96 @@ def test_wall_by_wall_yaw_is_blind_to_a_wall_group_changing():
     assert sigma == pytest.approx(math.hypot(side.yaw_sigma_fit, after[0].yaw_sigma_fit), rel=1e-9)
     both = match_walls([side, box], after, yaw, t, cfg)
     assert [p[0] for p in both] == [side, box]
+
+
+def test_a_wall_offset_jump_beyond_the_guess_is_another_plane():
+    """A partial step's wall pair whose offset change departs from the step's guess by many
+    sigmas is a different plane in one view (a box face 10 cm in front of the wall it stands
+    against), not a 10 cm step: with the guess's sigma it is left out; the true wall stays."""
+    from planar_vo.frontend.config import OdometryConfig
+    from planar_vo.frontend.odometry import translation_from_walls, wall_constraints
+    from planar_vo.frontend.planes import Plane
+
+    def end_wall(offset):
+        s2 = (math.radians(0.03) / offset) ** 2
+        return Plane("wall", np.array([0.0, 0.0, -1.0]), offset, 0.2, 2000, 0.001, np.diag([s2, 0.0, s2]))
+
+    cfg = OdometryConfig()
+    guess, sigma_guess = np.array([0.0, 0.017]), 0.003        # 17 mm forward, levelled (t_x, t_z)
+    before = end_wall(3.0)
+    true_after, box_after = end_wall(3.0 - 0.017 + 0.001), end_wall(3.0 - 0.017 - 0.10)
+    # the wall's normal points at the camera (-z): moving forward by t_z shortens it by t_z
+    kept = wall_constraints([before], [true_after], 0.0, guess, cfg, sigma_guess)
+    assert len(kept) == 1
+    t, _ = translation_from_walls(kept, guess, sigma_guess)
+    assert abs(t[1] - 0.016) < 0.001
+    assert wall_constraints([before], [box_after], 0.0, guess, cfg, sigma_guess) == []
+    # without a sigma for the guess only the association window (wall_match_m) applies: the
+    # 10 cm jump would have become the step (the 99 mm error of a tuning hall's partial step)
+    wrong = wall_constraints([before], [box_after], 0.0, guess, cfg)
+    assert len(wrong) == 1
+    t_wrong, _ = translation_from_walls(wrong, guess, sigma_guess)
+    assert t_wrong[1] - 0.017 > 0.05
+
+
+def test_crowded_two_point_matches_state_a_larger_yaw_sigma():
+    """Matches crowded into a few image cells share their errors: the 2-point yaw's sigma
+    grows as min_cells / cells; spread matches keep their covariance; correlations stay."""
+    from planar_vo.frontend.odometry import inflate_crowded_yaw, occupied_cells
+
+    rng = np.random.default_rng(3)
+    cov = np.array([[4e-8, 1e-7, 0.0], [1e-7, 1e-5, 0.0], [0.0, 0.0, 4e-6]])
+    blob = 0.02 + 0.1 * rng.random((60, 2))                # one 0.12 x 0.12 patch: 1-4 cells
+    spread = np.column_stack([np.repeat(np.linspace(-0.7, 0.7, 10), 8), np.tile(np.linspace(-0.45, 0.45, 8), 10)])
+    assert occupied_cells(blob) <= 4 and occupied_cells(spread) == 80
+    assert np.array_equal(inflate_crowded_yaw(cov, spread, 60.0), cov)
+    out = inflate_crowded_yaw(cov, blob, 60.0)
+    k = 60.0 / occupied_cells(blob)
+    assert math.sqrt(out[0, 0] / cov[0, 0]) == pytest.approx(k)
+    assert out[0, 1] / math.sqrt(out[0, 0] * out[1, 1]) == pytest.approx(cov[0, 1] / math.sqrt(cov[0, 0] * cov[1, 1]))
+    assert np.array_equal(out[1:, 1:], cov[1:, 1:])
+    # with the matches' depth the added variance lies along the far-wall ambiguity: a yaw
+    # error d moves the sideways translation by -Z d, the forward one not at all
+    z = 3.0
+    along = inflate_crowded_yaw(cov, blob, 60.0, z) - cov
+    assert along[0, 0] == pytest.approx((k * k - 1.0) * cov[0, 0])
+    assert along[0, 1] == pytest.approx(-z * along[0, 0]) and along[1, 1] == pytest.approx(z * z * along[0, 0])
+    assert np.all(along[2] == 0.0) and np.all(along[:, 2] == 0.0)
+
+
+def test_a_two_point_step_against_the_velocity_is_not_a_measurement():
+    """A 2-point translation 50 mm off a 35 mm/step cruise, stated at a few millimetres (a
+    tile grid aliased under KLT), departs from the constant-velocity guess by far more than
+    the platform's acceleration allows: it is refused. A step within it is kept, and with no
+    recent measured velocity (or the gate at 0) nothing is refused."""
+    from dataclasses import replace as dc_replace
+
+    from planar_vo.core.steps import FrameDiagnostics
+    from planar_vo.frontend.config import FrontendConfig
+
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    odo = PlanarOdometry(K)
+    cruise = np.array([0.0, 0.0, -0.0356])            # levelled: points come 35.6 mm nearer
+    odo._n = 10
+    odo._dt = 1.0 / 30.0
+    odo._history = [(k, cruise) for k in range(6, 11)]
+    odo._last_motion = (0.0, cruise)
+    odo._last_t_sigma = 0.001
+    cov = np.diag([1e-6, 0.003 ** 2, 0.003 ** 2])
+    info = FrameDiagnostics()
+    assert not odo._velocity_jump(cruise + np.array([0.002, 0.0, -0.001]), cov, info)
+    assert odo._velocity_jump(np.array([-0.0508, 0.0, 0.017]), cov, info)
+    assert info.rejected[-1]["velocity_jump_m"] == pytest.approx(math.hypot(0.0508, 0.0526), rel=1e-6)
+    # steps that disagree among themselves by tens of millimetres make no guess to refuse by
+    erratic = [cruise + np.array([dx, 0.0, 0.0]) for dx in (0.0, -0.044, -0.008, -0.031, 0.0)]
+    saved = odo._history
+    odo._history = [(6 + k, v) for k, v in enumerate(erratic)]
+    assert not odo._velocity_jump(cruise, cov, FrameDiagnostics())
+    odo._history = saved
+    odo._n = 30                                          # the last measurement is 20 frames old
+    assert not odo._velocity_jump(np.array([-0.0508, 0.0, 0.017]), cov, FrameDiagnostics())
+    cfg = FrontendConfig()
+    off = PlanarOdometry(K, config=dc_replace(cfg, odometry=dc_replace(cfg.odometry, velocity_gate_sigmas=0.0)))
+    off.__dict__.update({k: getattr(odo, k) for k in ("_dt", "_history", "_last_motion", "_last_t_sigma")})
+    off._n = 10
+    assert not off._velocity_jump(np.array([-0.0508, 0.0, 0.017]), cov, FrameDiagnostics())

@@ -74,12 +74,14 @@ def make_planar_problem(
     outlier_ratio: float = 0.0,
     depth_noise: float = 0.0,
     yaw: float | None = None,
+    depth_spread: float = 0.5,
 ) -> PlanarProblem:
     """Simulate the paper's synthetic scene (Sec. 3.1) and a planar motion through it.
 
     ``n`` points visible in both views, ``ground_fraction`` of them on the floor
     ``camera_height`` below the camera, the rest above it, depths uniform in
-    ``scene_depth * [0.5, 1.5]`` (mean ``scene_depth``), inside a ``fov_deg`` square field of
+    ``scene_depth * [1 - depth_spread, 1 + depth_spread]`` (mean ``scene_depth``; a small
+    spread is a far wall, where yaw and sideways translation trade off), inside a ``fov_deg`` square field of
     view. View 2's centre moves by ``baseline * scene_depth`` along view 1's z
     (``"forward"``) or x (``"sideways"``) axis and turns by a yaw uniform in
     ``+-yaw_range_deg`` (or ``yaw`` radians if given). ``noise_px``: Gaussian image noise
@@ -101,7 +103,9 @@ def make_planar_problem(
     c2 = np.array([0.0, 0.0, b]) if motion == "forward" else np.array([b, 0.0, 0.0])
     t = -R @ c2  # camera-2 centre at c2 in view 1: X2 = R (X1 - c2)
     h = camera_height * scene_depth
-    zlo, zhi = 0.5 * scene_depth, 1.5 * scene_depth
+    if not 0.0 <= depth_spread < 1.0:
+        raise ValueError(f"depth_spread must be in [0, 1), got {depth_spread}")
+    zlo, zhi = (1.0 - depth_spread) * scene_depth, (1.0 + depth_spread) * scene_depth
 
     n_ground = int(round(ground_fraction * n))
     pts: list[np.ndarray] = []
