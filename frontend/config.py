@@ -182,20 +182,20 @@ class OdometryConfig:
     #: The 2-point covariance assumes independent match errors. Matches crowded into a few
     #: image cells (1/8 of a normalised unit, ~70 px on a qhd Kinect) share theirs: the same
     #: texture blob, the same far wall, where yaw and sideways motion trade off. Below this
-    #: many occupied cells the yaw's sigma grows as min_cells / cells (measured on the
-    #: halls of tuning seeds 3300-3307: yaw errors 0.10 deg at 13 cells, 0.04 at 32, 0.01
-    #: at 74, all stated at ~0.02 deg).
+    #: many occupied cells the yaw's sigma grows as min_cells / cells, the variance added
+    #: along the yaw / sideways valley (measured on the halls of tuning seeds 3300-3407:
+    #: yaw errors 0.10 deg at 13 cells, 0.04 at 32, 0.01 at 74, all stated at ~0.02 deg).
     two_point_min_cells: float = 60.0
-    #: The base is wheeled and does not slide sideways (differential drive, Ackermann): the
-    #: 2-point refinement asks each base_link step to follow its heading, at a sigma of
-    #: lateral_floor_m + lateral_slip x the step's length. It resolves the yaw / sideways
-    #: translation ambiguity of far features (not used on pure rotations, whose images do
-    #: not see the translation). 0 turns it off (holonomic bases).
     #: A 2-point step whose translation departs from the constant-velocity guess by more
     #: than this many sigmas (its own and the guess's, whose sigma is the platform's
     #: acceleration limit) is not a measurement: matches agreeing on a wrong motion (a tile
     #: grid aliased under KLT). 0 turns the gate off.
     velocity_gate_sigmas: float = 6.0
+    #: The base is wheeled and does not slide sideways (differential drive, Ackermann): the
+    #: 2-point refinement asks each base_link step to follow its heading, at a sigma of
+    #: lateral_floor_m + lateral_slip x the step's length. It resolves the yaw / sideways
+    #: translation ambiguity of far features (not used on pure rotations, whose images do
+    #: not see the translation). 0 turns it off (holonomic bases).
     lateral_slip: float = 0.03
     lateral_floor_m: float = 0.0005
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from

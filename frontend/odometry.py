@@ -180,17 +180,16 @@ def occupied_cells(x: np.ndarray, cell: float = 0.125) -> int:
     return len(np.unique(np.floor(np.asarray(x) / cell).astype(np.int64), axis=0))
 
 
-def inflate_crowded_yaw(cov: np.ndarray, x_inliers: np.ndarray, min_cells: float,
-                        depth: float = math.nan) -> np.ndarray:
+def inflate_crowded_yaw(cov: np.ndarray, cells: int, min_cells: float, depth: float = math.nan) -> np.ndarray:
     """The 2-point covariance (3, 3) over (yaw, t_x, t_z) with the yaw's sigma scaled by
-    ``min_cells / cells`` when the inliers ``x_inliers`` (N, 2, normalised) occupy fewer
-    than ``min_cells`` image cells (:func:`occupied_cells`). Crowded matches share their
+    ``min_cells / cells`` when the inliers occupy fewer than ``min_cells`` image cells
+    (``cells``, :func:`occupied_cells`). Crowded matches share their
     errors, which the inlier residuals cannot show: on the low-texture tuning halls the yaw
     erred 5x its stated sigma, and the sideways translation by -Z times the yaw error (the
     far-wall ambiguity, ``X2 = R X1 + t`` unchanged). So the variance is added along that
     direction, ``(1, -depth, 0)``, with ``depth`` (m) the matches' typical depth; without
     one, to the yaw alone (its correlations scaled with it)."""
-    k = min_cells / max(occupied_cells(x_inliers), 1)
+    k = min_cells / max(cells, 1)
     if k <= 1.0:
         return cov
     if not math.isfinite(depth):
@@ -601,15 +600,15 @@ class PlanarOdometry:
             opt = replace(opt, mount_se2=tuple(float(v) for v in mount_se2))
         motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, opt)
         n_in = est.num_inliers
+        cells = occupied_cells(x2[est.inliers]) if est.inliers is not None else 0
         if motion is not None and est.covariance is not None:
             z = P1[est.inliers, 2]
             z = z[np.isfinite(z)]
-            est.covariance = inflate_crowded_yaw(est.covariance, x2[est.inliers], c.two_point_min_cells,
+            est.covariance = inflate_crowded_yaw(est.covariance, cells, c.two_point_min_cells,
                                                  float(np.median(z)) if len(z) else math.nan)
         n_scale = int(est.scale_inliers.sum()) if est.scale_inliers is not None else 0
         info.two_point = {"status": est.status, "inliers": n_in, "scale_inliers": n_scale,
-                       "iterations": est.iterations,
-                       "cells": occupied_cells(x2[est.inliers]) if est.inliers is not None else 0}
+                          "iterations": est.iterations, "cells": cells}
         # from yaw_only_min_inliers on the estimate may still give a pure rotation's yaw
         # (_weak_scale); a whole step needs min_inliers
         if (motion is not None and n_in >= min(c.min_inliers, c.yaw_only_min_inliers)

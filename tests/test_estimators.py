@@ -393,7 +393,9 @@ def test_lateral_prior_pins_the_far_wall_yaw_ambiguity():
 
 
 def test_lateral_prior_options_are_checked():
-    with pytest.raises(Exception, match="lateral_slip"):
+    from planar_vo.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="lateral_slip"):
         MetricTwoPointOptions(lateral_slip=-0.1)
 
 

@@ -282,8 +282,8 @@ def test_crowded_two_point_matches_state_a_larger_yaw_sigma():
     blob = 0.02 + 0.1 * rng.random((60, 2))                # one 0.12 x 0.12 patch: 1-4 cells
     spread = np.column_stack([np.repeat(np.linspace(-0.7, 0.7, 10), 8), np.tile(np.linspace(-0.45, 0.45, 8), 10)])
     assert occupied_cells(blob) <= 4 and occupied_cells(spread) == 80
-    assert np.array_equal(inflate_crowded_yaw(cov, spread, 60.0), cov)
-    out = inflate_crowded_yaw(cov, blob, 60.0)
+    assert np.array_equal(inflate_crowded_yaw(cov, occupied_cells(spread), 60.0), cov)
+    out = inflate_crowded_yaw(cov, occupied_cells(blob), 60.0)
     k = 60.0 / occupied_cells(blob)
     assert math.sqrt(out[0, 0] / cov[0, 0]) == pytest.approx(k)
     assert out[0, 1] / math.sqrt(out[0, 0] * out[1, 1]) == pytest.approx(cov[0, 1] / math.sqrt(cov[0, 0] * cov[1, 1]))
@@ -291,7 +291,7 @@ def test_crowded_two_point_matches_state_a_larger_yaw_sigma():
     # with the matches' depth the added variance lies along the far-wall ambiguity: a yaw
     # error d moves the sideways translation by -Z d, the forward one not at all
     z = 3.0
-    along = inflate_crowded_yaw(cov, blob, 60.0, z) - cov
+    along = inflate_crowded_yaw(cov, occupied_cells(blob), 60.0, z) - cov
     assert along[0, 0] == pytest.approx((k * k - 1.0) * cov[0, 0])
     assert along[0, 1] == pytest.approx(-z * along[0, 0]) and along[1, 1] == pytest.approx(z * z * along[0, 0])
     assert np.all(along[2] == 0.0) and np.all(along[:, 2] == 0.0)
