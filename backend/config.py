@@ -52,6 +52,15 @@ class BackendConfig:
     bridged_sigma_xy: float = 0.5            # m
     bridged_sigma_theta_deg: float = 30.0    # deg
 
+    #: Motion prior next to steps whose translation vision did not measure (partial,
+    #: bridged): the base_link velocity of consecutive steps agrees within this acceleration
+    #: times their spacing (m/s^2; a sigma, not a limit). About what an indoor base does when
+    #: it speeds up or brakes. 0 turns it off (the gap keeps the front-end's forward guess).
+    motion_prior_accel: float = 0.5
+    #: The same for the turn rate (deg/s^2): a heading weaving +-6 deg with a 1 m period at
+    #: 0.5 m/s turns at up to ~30 deg/s^2 (the front-end's bridged guess uses the same).
+    motion_prior_yaw_accel_deg: float = 30.0
+
     # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)
     #: Use the log's wheel odometry when it has one (``--no-wheel-odom`` turns it off).
     wheel_odom: bool = True
@@ -163,7 +172,7 @@ class BackendConfig:
                     "manhattan_robust_parameter", "bridged_sigma_xy", "bridged_sigma_theta_deg",
                     "manhattan_min_sigma_deg", "manhattan_tie_sigma_deg", "gate_sigmas", "gate_max_deg", "new_frame_gate_deg",
                     "same_frame_deg",
-                    "isam2_relinearize_xy", "isam2_relinearize_theta_deg",
+                    "isam2_relinearize_xy", "isam2_relinearize_theta_deg", "motion_prior_yaw_accel_deg",
                     "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg", "wheel_odom_max_disagreement",
                     "wheel_odom_check_m", "wheel_odom_distrust", "closure_robust_parameter")
         for name in positive:
@@ -171,7 +180,7 @@ class BackendConfig:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
-                     "manhattan_instance_size", "closure_max_error_sigmas", "closure_min_sigma_xy",
+                     "manhattan_instance_size", "closure_max_error_sigmas", "motion_prior_accel", "closure_min_sigma_xy",
                      "closure_min_sigma_theta_deg",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:

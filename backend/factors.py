@@ -41,7 +41,8 @@ from gtsam.symbol_shorthand import M, X
 from planar_vo.core.errors import ConfigError
 
 __all__ = ["X", "M", "robust_noise", "step_noise", "manhattan_factor", "manhattan_anchor",
-           "manhattan_residual", "robust_weight", "manhattan_tie", "manhattan_value", "TWO_PI", "HALF_PI"]
+           "manhattan_residual", "robust_weight", "manhattan_tie", "manhattan_value",
+           "constant_velocity_residual", "constant_velocity_factor", "TWO_PI", "HALF_PI"]
 
 TWO_PI = 2.0 * math.pi
 HALF_PI = 0.5 * math.pi
@@ -131,3 +132,74 @@ def manhattan_tie(a: int, b: int, sigma: float, kind: str):
 def manhattan_value(yaw: float, kind: str):
     """Initial value of ``M(frame)`` with world heading ``yaw`` (rad)."""
     return gtsam.Pose2(0.0, 0.0, yaw) if kind == "native" else gtsam.Rot2(yaw)
+
+
+# --- constant body-frame velocity (the motion prior of weak steps) --------------------------
+
+_J90 = np.array([[0.0, -1.0], [1.0, 0.0]])  # d/dtheta R(theta) = R(theta) J90
+
+
+def _rot(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def constant_velocity_residual(a, b, c, dt1: float, dt2: float, jacobians: bool = False):
+    """Change of the base_link velocity between two consecutive steps: (3,) ``[vx, vy]`` in
+    m/s and the yaw rate in rad/s.
+
+    ``a, b, c``: (3,) ``T_odom_base`` (x, y, theta) of frames k-2, k-1, k; ``dt1, dt2`` (s):
+    the steps' durations. With ``t1 = R_a^T (p_b - p_a)`` (step k-1 in base_link of k-2),
+    ``t2 = R_b^T (p_c - p_b)`` and the yaw steps ``d1 = wrap(theta_b - theta_a)``,
+    ``d2 = wrap(theta_c - theta_b)`` the residual is ``(t2 / dt2 - t1 / dt1, d2 / dt2 -
+    d1 / dt1)``. A wheeled base keeps its body-frame velocity (forward speed, no sideways
+    slip, turn rate) from one step to the next unless it accelerates, so this is a
+    white-noise-on-acceleration prior. Zero on an arc driven at constant speed.
+
+    With ``jacobians``: also ``(H_a, H_b, H_c)``, (3, 3) each, with respect to GTSAM's Pose2
+    tangent ``[dx, dy, dtheta]`` in the body frame (``X (+) xi = X Exp(xi)``, first order
+    ``p += R [dx, dy]``, ``theta += dtheta``).
+    """
+    Ra, Rb = _rot(a[2]), _rot(b[2])
+    t1 = Ra.T @ (np.asarray(b[:2]) - a[:2])
+    t2 = Rb.T @ (np.asarray(c[:2]) - b[:2])
+    d1 = math.remainder(b[2] - a[2], TWO_PI)
+    d2 = math.remainder(c[2] - b[2], TWO_PI)
+    r = np.array([*(t2 / dt2 - t1 / dt1), d2 / dt2 - d1 / dt1])
+    if not jacobians:
+        return r
+    # d(R^T v)/dtheta = -J90 R^T v; a body-frame shift du of a pose moves its point by R du.
+    H_a = np.zeros((3, 3))
+    H_b = np.zeros((3, 3))
+    H_c = np.zeros((3, 3))
+    H_a[:2, :2], H_a[:2, 2], H_a[2, 2] = np.eye(2) / dt1, _J90 @ t1 / dt1, 1.0 / dt1
+    H_b[:2, :2] = -np.eye(2) / dt2 - _rot(b[2] - a[2]) / dt1
+    H_b[:2, 2], H_b[2, 2] = -_J90 @ t2 / dt2, -1.0 / dt2 - 1.0 / dt1
+    H_c[:2, :2], H_c[2, 2] = _rot(c[2] - b[2]) / dt2, 1.0 / dt2
+    return r, (H_a, H_b, H_c)
+
+
+def _pose_vec(values, key) -> np.ndarray:
+    p = values.atPose2(key)
+    return np.array([p.x(), p.y(), p.theta()])
+
+
+def _constant_velocity_error(keys, dt1, dt2, this, values, H):
+    a, b, c = (_pose_vec(values, k) for k in keys)
+    if H is None:
+        return constant_velocity_residual(a, b, c, dt1, dt2)
+    r, Hs = constant_velocity_residual(a, b, c, dt1, dt2, jacobians=True)
+    for i, h in enumerate(Hs):
+        H[i] = h
+    return r
+
+
+def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma: float, sigma_yaw: float):
+    """Motion prior on ``X(k-2), X(k-1), X(k)``: the base_link velocity of step k equals that
+    of step k-1 within ``sigma`` (m/s) and ``sigma_yaw`` (rad/s)
+    (:func:`constant_velocity_residual`). A ``gtsam.CustomFactor`` (Python callback): added
+    only next to steps whose motion vision did not measure, where it carries the velocity
+    measured before and after a gap."""
+    keys = [X(k - 2), X(k - 1), X(k)]
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, sigma, sigma_yaw]))
+    return gtsam.CustomFactor(noise, keys, partial(_constant_velocity_error, keys, float(dt1), float(dt2)))

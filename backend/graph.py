@@ -20,8 +20,9 @@ import numpy as np
 
 from planar_vo.backend.association import ManhattanAssociator, ManhattanLink
 from planar_vo.backend.config import BackendConfig
-from planar_vo.backend.factors import (M, X, manhattan_anchor, manhattan_factor, manhattan_tie,
-                                       manhattan_value, robust_noise, robust_weight, step_noise)
+from planar_vo.backend.factors import (M, X, constant_velocity_factor, manhattan_anchor, manhattan_factor,
+                                       manhattan_tie, manhattan_value, robust_noise, robust_weight,
+                                       step_noise)
 from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
 from planar_vo.core.geometry import se2_compose, wrap_angle, wrap_quarter
 from planar_vo.backend.wheel import fuse_steps
@@ -214,6 +215,9 @@ class _GraphBuilder:
                                 math.radians(config.step_min_sigma_theta_deg)]) ** 2
         self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
                                         math.radians(config.closure_min_sigma_theta_deg)]) ** 2
+        self._stamps: list[float] = []     # frame stamps (s), for the motion prior's durations
+        self._weak: list[bool] = []        # step into frame k left translation unmeasured
+        self._yaw_accel = math.radians(config.motion_prior_yaw_accel_deg)
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
 
@@ -306,10 +310,32 @@ class _GraphBuilder:
             self.counts["manhattan"] += len(out.links)
             self.assoc_counts.update(associated=out.associated, rejected=out.rejected,
                                      ignored=out.ignored, new_frames=len(out.new_frames))
+        self._motion_prior(k, result, odometry, graph)
         values.insert(X(k), gtsam.Pose2(*guess))
         self.guess.append(guess)
         self.n += 1
         return graph, values, k
+
+    def _motion_prior(self, k: int, result: FrameResult, odometry, graph) -> None:
+        """Constant base_link velocity across steps whose translation no estimator measured
+        (partial, bridged; a step with wheel odometry is measured): the front-end only
+        extrapolates the velocity forward from before a gap, this ties a gap to the speed
+        measured on both sides (and fills a gap at the start of a run, where there is no
+        "before": a textureless corridor until its end wall comes into range)."""
+        self._stamps.append(float(result.stamp))
+        weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL))
+        self._weak.append(weak)
+        accel = self.cfg.motion_prior_accel
+        if k < 2 or accel <= 0 or not (weak or self._weak[k - 1]):
+            return
+        dt1 = self._stamps[k - 1] - self._stamps[k - 2]
+        dt2 = self._stamps[k] - self._stamps[k - 1]
+        if not (dt1 > 0 and dt2 > 0):
+            return  # repeated stamps: no duration to turn into a velocity
+        # The velocity may change by what the acceleration does between the steps' midpoints.
+        dt = 0.5 * (dt1 + dt2)
+        graph.add(constant_velocity_factor(k, dt1, dt2, accel * dt, self._yaw_accel * dt))
+        self.counts["motion_prior"] += 1
 
     def _new_instance(self, yaw: float, graph, values) -> int:
         i = self.n_inst

@@ -329,7 +329,13 @@ class PlaceConfig:
     ``many_inliers`` inliers on: near a corner a true revisit sees one wall and a little
     floor, while the consensus of a repeated poster, door or box at another place stayed
     within 2 cm of one line, or 0.17-0.18 m over two of them with 17-30 inliers, on the
-    tuning ring). With a Manhattan frame in both
+    tuning ring). A narrow consensus is accepted only when both keyframes see a Manhattan
+    frame and the odometry prior's largest translation sigma is at most
+    ``narrow_max_prior_sigma_m``: the prior then tells the place from a look-alike a few
+    metres away (its 99.9 % gate is ~4 sigma wide). True narrow closures on the tuning rings
+    had priors of 0.10-0.27 m; a textureless corridor whose motion was not measured (prior
+    8.7 m) closed frame 0 onto frame 210, 10.7 m on, through one repeated door frame (29
+    inliers, 0.17 m spread). With a Manhattan frame in both
     keyframes, their relative yaw (paper eq. 1) must agree with the points' yaw within
     ``manhattan_gate_sigmas`` and ``manhattan_gate_deg`` (else rejected:
     ``manhattan_mismatch``); ``yaw_from: fused`` (default) then takes the inverse-variance
@@ -359,6 +365,7 @@ class PlaceConfig:
     min_spread_m: float = 0.2
     min_spread_many_m: float = 0.08
     many_inliers: int = 80
+    narrow_max_prior_sigma_m: float = 1.0
     ransac_iterations: int = 512
     chi2: float = 11.34
     depth_sigma_const: float = 0.002
@@ -394,5 +401,8 @@ class PlaceConfig:
         if self.yaw_from not in ("points", "manhattan", "fused"):
             raise ConfigError(f"config key 'places.yaw_from' must be 'points', 'manhattan' or 'fused', "
                               f"got {self.yaw_from!r}")
+        if not self.narrow_max_prior_sigma_m > 0:
+            raise ConfigError("config key 'places.narrow_max_prior_sigma_m' must be > 0, "
+                              f"got {self.narrow_max_prior_sigma_m!r}")
         if self.depth_sigma_quad < 0 or self.manhattan_min_score < 0:
             raise ConfigError("config keys 'places.depth_sigma_quad' and 'places.manhattan_min_score' must be >= 0")

@@ -555,9 +555,11 @@ def _verify(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfi
     mf = _manhattan_yaw(a, b, yaw, float(cov[0, 0]), config)
     if mf is not None and mf[0] == "mismatch":
         return ClosureCheck(False, MANHATTAN_MISMATCH, None, None, yaw_source="manhattan", **out)
-    if narrow and (mf is None or prior is None):
+    if narrow and (mf is None or prior is None
+                   or geometry.largest_sigma(np.asarray(prior[1], float)[:2, :2]) > config.narrow_max_prior_sigma_m):
         # inliers in a narrow band (one wall) fix the translation at a given yaw, not the yaw,
-        # and geometry alone cannot tell such a band from a look-alike one elsewhere
+        # and geometry alone cannot tell such a band from a look-alike one elsewhere: only a
+        # prior whose gate is narrower than the spacing of repeated doors and posters can
         return ClosureCheck(False, POOR_SPREAD, None, None, **out)
     if mf is not None and (config.yaw_from != "points" or narrow):
         # narrow: the walls give the yaw (eq. 1), the points the translation at it

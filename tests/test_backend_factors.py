@@ -100,3 +100,55 @@ def test_config_validation():
         from_dict(BackendConfig, {"gate_max_deg": 50.0})
     with pytest.raises(ConfigError, match="gate_sigma"):
         from_dict(BackendConfig, {"gate_sigma": 3.0})
+
+
+def test_constant_velocity_jacobians_match_central_differences():
+    """The motion prior's analytic Jacobians (through GTSAM's Pose2 retract) against
+    central differences, on random poses and unequal step durations."""
+    from planar_vo.backend.factors import constant_velocity_factor, constant_velocity_residual
+
+    rng = np.random.default_rng(12)
+    eps = 1e-6
+    for _ in range(20):
+        poses = [np.array([*rng.normal(0, 2, 2), rng.uniform(-math.pi, math.pi)]) for _ in range(3)]
+        dt1, dt2 = rng.uniform(0.03, 0.2, 2)
+        f = constant_velocity_factor(2, dt1, dt2, sigma=1.0, sigma_yaw=1.0)  # whitened == unwhitened
+        v = gtsam.Values()
+        for i, p in enumerate(poses):
+            v.insert(X(i), gtsam.Pose2(*p))
+        np.testing.assert_allclose(f.unwhitenedError(v), constant_velocity_residual(*poses, dt1, dt2), atol=1e-12)
+        A = f.linearize(v).jacobian()[0]
+        for i in range(3):
+            cols = []
+            for d in range(3):
+                dv = np.zeros(3)
+                dv[d] = eps
+                vp, vm = gtsam.Values(v), gtsam.Values(v)
+                vp.update(X(i), v.atPose2(X(i)).retract(dv))
+                vm.update(X(i), v.atPose2(X(i)).retract(-dv))
+                cols.append((f.unwhitenedError(vp) - f.unwhitenedError(vm)) / (2 * eps))
+            np.testing.assert_allclose(A[:, 3 * i:3 * i + 3], np.column_stack(cols), atol=1e-5)
+
+
+def test_constant_velocity_residual_is_zero_on_an_arc():
+    """Constant speed and turn rate: every step is the same in its own base_link, so the
+    body-frame velocity and the turn rate do not change (a straight line is not needed)."""
+    from planar_vo.backend.factors import constant_velocity_residual
+
+    step = np.array([0.07, 0.0012, 0.034])  # an arc's chord: y = x tan(theta / 2)
+    step[1] = step[0] * math.tan(step[2] / 2)
+    a = np.array([1.0, -2.0, 0.4])
+    b = np.array([*(a[:2] + _rot2(a[2]) @ step[:2]), a[2] + step[2]])
+    c = np.array([*(b[:2] + _rot2(b[2]) @ step[:2]), b[2] + step[2]])
+    np.testing.assert_allclose(constant_velocity_residual(a, b, c, 0.1, 0.1), 0.0, atol=1e-12)
+    # twice the step in twice the time is the same velocity
+    c2 = np.array([*(b[:2] + _rot2(b[2]) @ (2 * step[:2])), b[2] + 2 * step[2]])
+    np.testing.assert_allclose(constant_velocity_residual(a, b, c2, 0.1, 0.2), 0.0, atol=1e-12)
+    # a 10 mm longer step in 0.1 s is 0.1 m/s faster
+    c3 = np.array([*(b[:2] + _rot2(b[2]) @ (step[:2] + [0.01, 0.0])), b[2]])
+    np.testing.assert_allclose(constant_velocity_residual(a, b, c3, 0.1, 0.1), [0.1, 0.0, -step[2] / 0.1],
+                               atol=1e-12)  # (c3 kept b's heading: the turn stopped)
+
+
+def _rot2(t):
+    return np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])

@@ -238,6 +238,12 @@ def test_one_wall_view_needs_the_walls_yaw_and_a_prior(corridor):
     assert c.accepted and c.yaw_source == "manhattan", c.reason
     e = _error(c, a, b)
     assert math.hypot(e[0], e[1]) <= 0.05 and abs(math.degrees(e[2])) <= 0.5
+    # a prior too wide to tell this wall from a look-alike a door further on confirms
+    # nothing (an unmeasured textureless corridor: 8.7 m): refused as with no prior
+    vague = (prior[0], np.diag([5.0 ** 2, 5.0 ** 2, math.radians(2.0) ** 2]))
+    c = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=vague)
+    assert not c.accepted and c.reason == "poor_spread"
+    assert CONFIG.narrow_max_prior_sigma_m == 1.0
 
 
 def test_plain_walls_lower_the_fast_threshold():
