@@ -57,8 +57,9 @@ class BackendConfig:
     #: times their spacing (m/s^2; a sigma, not a limit). About what an indoor base does when
     #: it speeds up or brakes. 0 turns it off (the gap keeps the front-end's forward guess).
     motion_prior_accel: float = 0.5
-    #: The same for the turn rate (deg/s^2): a heading weaving +-6 deg with a 1 m period at
-    #: 0.5 m/s turns at up to ~30 deg/s^2 (the front-end's bridged guess uses the same).
+    #: The same for the turn rate (deg/s^2): a heading weaving with a 1 m period at 0.5 m/s
+    #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
+    #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2 (the front-end's bridged guess uses the same 30).
     motion_prior_yaw_accel_deg: float = 30.0
 
     # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)

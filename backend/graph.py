@@ -215,8 +215,8 @@ class _GraphBuilder:
                                 math.radians(config.step_min_sigma_theta_deg)]) ** 2
         self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
                                         math.radians(config.closure_min_sigma_theta_deg)]) ** 2
-        self._stamps: list[float] = []     # frame stamps (s), for the motion prior's durations
-        self._weak: list[bool] = []        # step into frame k left translation unmeasured
+        #: (stamp s, step left translation unmeasured) of the last two frames: the motion prior's
+        self._recent: list[tuple[float, bool]] = []
         self._yaw_accel = math.radians(config.motion_prior_yaw_accel_deg)
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
@@ -322,14 +322,13 @@ class _GraphBuilder:
         extrapolates the velocity forward from before a gap, this ties a gap to the speed
         measured on both sides (and fills a gap at the start of a run, where there is no
         "before": a textureless corridor until its end wall comes into range)."""
-        self._stamps.append(float(result.stamp))
         weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL))
-        self._weak.append(weak)
+        recent, self._recent = self._recent, (self._recent + [(float(result.stamp), weak)])[-2:]
         accel = self.cfg.motion_prior_accel
-        if k < 2 or accel <= 0 or not (weak or self._weak[k - 1]):
+        if k < 2 or accel <= 0 or not (weak or recent[1][1]):
             return
-        dt1 = self._stamps[k - 1] - self._stamps[k - 2]
-        dt2 = self._stamps[k] - self._stamps[k - 1]
+        dt1 = recent[1][0] - recent[0][0]
+        dt2 = float(result.stamp) - recent[1][0]
         if not (dt1 > 0 and dt2 > 0):
             return  # repeated stamps: no duration to turn into a velocity
         # The velocity may change by what the acceleration does between the steps' midpoints.

@@ -245,7 +245,7 @@ def test_textureless_corridor_without_odometry_drifts(textureless_log, tmp_path)
     """Without the odometry and without the back-end's motion prior the along-wall motion of
     the textureless L is unmeasured wherever no wall faces the camera: the trajectory drifts.
     With the prior the speed measured where an end or side wall is in range carries over the
-    gaps; this log drives at one constant speed (0.8 m/s), so that holds to well under 1 %,
+    gaps; this log cruises at one speed (0.8 m/s, after a 1 s start), so that holds to under 1 %,
     and the run still says that most steps were not measured."""
     _, ev = _run(textureless_log, tmp_path / "no", backend={"wheel_odom": False, "motion_prior_accel": 0.0})
     assert "wheel_odom" not in ev
