@@ -262,6 +262,9 @@ class OdometryConfig:
     bridge_accel_xy: float = 0.5          # m/s^2
     bridge_accel_theta_deg: float = 30.0  # deg/s^2
     bridge_sigma_xy: float = 1.0     # metres
+    #: The guessed velocity's drift stays within the platform's top speed (m/s; indoor
+    #: bases drive at up to ~1 m/s, the randomized scenes at 0.2-0.8).
+    bridge_max_speed: float = 1.0
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
     velocity_window: int = 5         # frames whose measured steps are averaged into the constant-velocity guess
@@ -275,11 +278,21 @@ class OdometryConfig:
     #: forward errors were 0.64 of their sigma with it, 0.86 without, tuning seeds).
     min_sigma_xy: float = 0.001
     min_sigma_theta_deg: float = 0.02
+    #: The same floors for 2-point steps. Their refinement fits the levelling error itself
+    #: (the tilted model of Sec. 2.2), so their residuals see what the floors above stand
+    #: for: on the halls of tuning seeds 3500-3607 (5032 steps) the floors above made their
+    #: stated sideways and yaw sigmas ~3x their errors (normalised RMS 0.30 / 0.37); at these
+    #: values 0.63 / 0.65 (forward, not floored: 1.24). The graph floors every step again
+    #: (backend.step_min_sigma_xy), for errors shared by many steps that no step's sigma states.
+    two_point_min_sigma_xy: float = 0.0002
+    two_point_min_sigma_theta_deg: float = 0.005
 
     def __post_init__(self) -> None:
         _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
                   velocity_window=self.velocity_window, wall_gate_sigmas=self.wall_gate_sigmas,
-                  two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m)
+                  two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m,
+                  two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
+                  two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg)
         if self.velocity_gate_sigmas < 0:
             raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
         if self.lateral_slip < 0:

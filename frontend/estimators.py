@@ -834,6 +834,7 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
         sigma = opt.lateral_floor_m + opt.lateral_slip * math.hypot(t0[0], t0[2])
         fun = _with_lateral_prior(fun, np.asarray(opt.mount_se2, dtype=float), sigma)
         n_prior = 1
+        info.extra["lateral_prior_m"] = sigma
     p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
     info.refine_iterations += its
     info.cost = cost
@@ -1004,14 +1005,29 @@ def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
     return tx, tz, inl
 
 
+#: Degrees of freedom the depth noise model counts for when the inliers' own scatter
+#: scales the direction-plus-point covariance (:func:`_pooled_scale`).
+DPP_MODEL_DOF = 4.0
+
+
+def _pooled_scale(chi2: float, dof: int) -> float:
+    """Variance factor from an inlier chi-square with ``dof`` degrees of freedom, pooled
+    with the noise model (factor 1) at :data:`DPP_MODEL_DOF`. With a factor never below 1
+    the direction-plus-point forward sigmas were twice their errors on the tuning seeds
+    3500-3507 (normalised RMS 0.45): hundreds of plane-refined depths scatter less than
+    the per-pixel model says."""
+    return (chi2 + DPP_MODEL_DOF) / (max(dof, 0) + DPP_MODEL_DOF)
+
+
 def _dpp_covariance(rx, rz, dx, dz, vx, vz, inl, tx: float, tz: float, yaw_sigma: float):
     """``(inliers, chi-square, covariance (3, 3) over (yaw, t_x, t_z))`` of the estimate."""
     wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
     n_in = int(inl.sum())
-    # reduced chi-square per axis, never below 1: a few agreeing matches must not claim
-    # more precision than their noise model gives
-    fx = max(float((wx * (dx[inl] - tx) ** 2).sum()) / (n_in - 1), 1.0) if n_in > 1 else 1.0
-    fz = max(float((wz * (dz[inl] - tz) ** 2).sum()) / (n_in - 1), 1.0) if n_in > 1 else 1.0
+    # reduced chi-square per axis, pooled with the noise model's 1 at DPP_MODEL_DOF degrees
+    # of freedom: a few agreeing matches cannot claim more precision than the model gives,
+    # many whose scatter is smaller than the model state that scatter
+    fx = _pooled_scale(float((wx * (dx[inl] - tx) ** 2).sum()), n_in - 1)
+    fz = _pooled_scale(float((wz * (dz[inl] - tz) ** 2).sum()), n_in - 1)
     chi2 = float((wx * (dx[inl] - tx) ** 2).sum() + (wz * (dz[inl] - tz) ** 2).sum())
     # t = mean(P2 - R P1): dt/dyaw = -mean(dR/dyaw P1) = (-rz, +rx) weighted
     gx = -float((wx * rz[inl]).sum() / wx.sum())

@@ -199,8 +199,15 @@ def inflate_crowded_yaw(cov: np.ndarray, cells: int, min_cells: float, depth: fl
     return cov + (k * k - 1.0) * cov[0, 0] * np.outer(v, v)
 
 
+def _prior_cov(sigma_prior) -> np.ndarray:
+    """(2, 2) covariance of a translation prior given as one sigma per axis (m) or as a
+    (2, 2) covariance (m^2)."""
+    a = np.asarray(sigma_prior, dtype=float)
+    return a if a.shape == (2, 2) else np.eye(2) * float(a) ** 2
+
+
 def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_prior: np.ndarray,
-                     config, sigma_prior: float = math.inf) -> list[tuple[np.ndarray, float, float]]:
+                     config, sigma_prior=math.inf) -> list[tuple[np.ndarray, float, float]]:
     """Translation constraints ``(n (2,), delta, var)`` meaning ``n . t = delta`` (levelled
     ``(t_x, t_z)``, metres) from vertical planes seen in both frames, given the step's yaw.
 
@@ -211,17 +218,20 @@ def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_pri
     with (anti)parallel normals are merged into one constraint: two nearly parallel
     normals would otherwise turn their offset noise into a large motion along the wall.
 
-    ``sigma_prior`` (m): the sigma of ``t_prior`` per axis. A pair whose offset change
+    ``sigma_prior``: the sigma of ``t_prior`` per axis (m) or its (2, 2) covariance (m^2;
+    :meth:`PlanarOdometry._wheeled_prior`). A pair whose offset change
     departs from the prior by more than ``config.wall_gate_sigmas`` combined sigmas is a
     different plane in one of the views (a box face in front of the wall it stands
     against), not a measurement: it is left out.
     """
     cos_gate = math.cos(math.radians(config.wall_match_deg))
+    C = _prior_cov(sigma_prior) if np.isfinite(sigma_prior).all() else None
     pairs = []
     for w1, w2, n2 in match_walls(walls1, walls2, yaw, t_prior, config, config.wall_max_offset_m):
         delta = w2.offset - w1.offset
         var = _offset_var_fit(w1) + _offset_var_fit(w2) + config.wall_min_sigma_m ** 2
-        if abs(delta - float(n2 @ t_prior)) <= config.wall_gate_sigmas * math.sqrt(var + sigma_prior ** 2):
+        var_prior = math.inf if C is None else float(n2 @ C @ n2)
+        if abs(delta - float(n2 @ t_prior)) <= config.wall_gate_sigmas * math.sqrt(var + var_prior):
             pairs.append((n2, delta, var))
     merged: list[list] = []  # [n_ref, sum w*delta, sum w] with delta signed along n_ref
     for n, delta, var in pairs:
@@ -236,11 +246,12 @@ def wall_constraints(walls1: list[Plane], walls2: list[Plane], yaw: float, t_pri
     return [(n, wd / w, 1.0 / w) for n, wd, w in merged]
 
 
-def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior: float) -> tuple[np.ndarray, np.ndarray]:
+def translation_from_walls(constraints, t_prior: np.ndarray, sigma_prior) -> tuple[np.ndarray, np.ndarray]:
     """Levelled translation ``(t_x, t_z)`` (2,) and its (2, 2) covariance from
-    :func:`wall_constraints` and an isotropic prior ``t_prior`` (2,), ``sigma_prior`` (m),
-    which keeps what no wall observes (information form)."""
-    A = np.eye(2) / sigma_prior ** 2
+    :func:`wall_constraints` and a prior ``t_prior`` (2,) with ``sigma_prior`` (one sigma
+    per axis, m, or a (2, 2) covariance), which keeps what no wall observes (information
+    form)."""
+    A = np.linalg.inv(_prior_cov(sigma_prior))
     b = A @ t_prior
     for n, delta, var in constraints:
         A += np.outer(n, n) / var
@@ -649,12 +660,21 @@ class PlanarOdometry:
         if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma and whole:
             return two, None
         info.two_point["scale_refused"] = n_scale
-        if est.status != "pure_rotation":
-            # far points: the sideways direction and the yaw trade off, and without depth
-            # nothing fixes the direction (yaw errors of 0.4-1.6 deg at 5-20 sigma on the
-            # tuning halls); a rotation that explains every match has no such freedom
-            return None, None
-        return None, (y_img, max(sigma, bend), y_img)
+        if est.status == "pure_rotation":
+            # a rotation that explains every match leaves the yaw no freedom
+            return None, (y_img, max(sigma, bend), y_img)
+        if "lateral_prior_m" in est.extra:
+            # Far points let the yaw and the sideways direction trade off, and the image
+            # matches alone picked a wrong end of that valley (yaw errors of 0.4-1.6 deg at
+            # 5-20 sigma on the tuning halls). A wheeled base's step follows its heading
+            # (odometry.lateral_slip): the joint fit's yaw then holds without a trusted
+            # scale, which only enters through the camera's lever arm. On a low-texture
+            # tuning hall (seed 3501) 58 such steps erred 0.07 deg rms, where the bridges
+            # they had been erred 0.1-0.4 deg each while the heading weaved.
+            y_fit = float(two[0].yaw)
+            return None, (y_fit, max(sigma, bend), y_fit)
+        # a holonomic base: nothing fixes the direction without depth
+        return None, None
 
     def _vetoed(self, dpp, two, pts, info) -> bool:
         """True when the 2-point yaw contradicts the Manhattan yaw (a wrong association).
@@ -709,12 +729,14 @@ class PlanarOdometry:
             return Step(pose, np.linalg.inv(cov_b), STATUS_BRIDGED, 0), (yaw, t, s_theta ** 2)
         self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
-        prior = np.array([t[0], t[2]])
-        walls = wall_constraints(walls1, walls2, yaw, prior, c, sb)
-        t_xz, cov_t = translation_from_walls(walls, prior, sb)
+        prior, prior_cov = np.array([t[0], t[2]]), sb
+        if c.lateral_slip > 0:
+            prior, prior_cov = self._wheeled_prior(yaw, prior, sb, mount_se2)
+        walls = wall_constraints(walls1, walls2, yaw, prior, c, prior_cov)
+        t_xz, cov_t = translation_from_walls(walls, prior, prior_cov)
         points, n_points = self._point_translation(pts, mf_yaw[2], (t_xz, cov_t), info)
         if points:
-            t_xz, cov_t = translation_from_walls(walls + points, prior, sb)
+            t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
         n_walls = len(walls)
         t = np.array([t_xz[0], 0.0, t_xz[1]])
         cov = np.zeros((3, 3))
@@ -743,6 +765,27 @@ class PlanarOdometry:
             # such steps stated at 2-26 cm)
             self._last_t_sigma = c.bridge_sigma_xy
         return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
+
+    def _wheeled_prior(self, yaw: float, t_guess: np.ndarray, sb: float, mount_se2: np.ndarray):
+        """Levelled ``(t_x, t_z)`` prior (2,) and its (2, 2) covariance for a partial step of
+        a wheeled base at the measured ``yaw`` (rad): the guess ``t_guess`` (2,) gives only
+        the distance along (sigma ``sb``, m); the base_link step runs along the chord of its
+        heading change, ``y = x tan(yaw / 2)``, off it by the slip (``lateral_floor_m +
+        lateral_slip |x|``). With an isotropic guess a wall paired with the wrong plane (a box
+        face) moved a turning step 58 mm sideways, stated at 2.8 mm, on an untextured hall."""
+        c = self.config.odometry
+
+        def base_xy(tx: float, tz: float) -> np.ndarray:
+            return lev_motion_to_base_step(yaw, np.array([tx, 0.0, tz]), None, mount_se2)[0][:2]
+        k = base_xy(0.0, 0.0)  # the lever arm's part; the map is affine in t
+        M = np.column_stack([base_xy(1.0, 0.0) - k, base_xy(0.0, 1.0) - k])
+        x = float((M @ t_guess + k)[0])
+        half = math.tan(yaw / 2.0)
+        slip = c.lateral_floor_m + c.lateral_slip * math.hypot(x, sb)
+        J = np.array([[1.0, 0.0], [half, 1.0]])
+        cov_base = J @ np.diag([sb ** 2, slip ** 2]) @ J.T
+        Mi = np.linalg.inv(M)
+        return Mi @ (np.array([x, x * half]) - k), Mi @ cov_base @ Mi.T
 
     def _point_translation(self, pts, yaw: float, known, info) -> tuple[list[tuple[np.ndarray, float, float]], int]:
         """``(constraints, matches)``: translation constraints (as :func:`wall_constraints`)
@@ -779,7 +822,8 @@ class PlanarOdometry:
         The guess errs by the velocity change since the last measurement: with
         accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
         intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
-        degree at first, growing while nothing is measured, capped at ``bridge_sigma_xy``
+        degree at first, growing while nothing is measured (the translation's growth at most
+        ``bridge_max_speed`` times the frame interval), capped at ``bridge_sigma_xy``
         / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured). The
         translation's rate of change is measured (:meth:`_velocity_change`) when it is
         smaller, and it also errs by the copied steps' own error (their sigma).
@@ -794,8 +838,11 @@ class PlanarOdometry:
         if nothing_known:
             return cap_xy, cap_th
         dt2 = self._dt * self._dt
-        s_xy = min(max(math.hypot(self._velocity_change(c.bridge_accel_xy * dt2) * self._since_t,
-                                  self._last_t_sigma), c.min_sigma_xy), cap_xy)
+        # the velocity cannot drift beyond the platform's top speed (at 30 Hz the growth
+        # alone reached 11 cm a step after 200 frames, and a wall paired with another plane
+        # 27 cm off passed the gate as a measurement of a 13 mm step)
+        drift = min(self._velocity_change(c.bridge_accel_xy * dt2) * self._since_t, c.bridge_max_speed * self._dt)
+        s_xy = min(max(math.hypot(drift, self._last_t_sigma), c.min_sigma_xy), cap_xy)
         s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
                        math.radians(c.min_sigma_theta_deg)), cap_th)
         return s_xy, s_th
@@ -868,8 +915,10 @@ class PlanarOdometry:
         # Floors for what the inlier residuals cannot see: levelling and calibration errors
         # turn the step and push it sideways. Along the motion the depth noise models hold
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
-        # with one, on the tuning seeds).
-        cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, c.min_sigma_xy ** 2, math.radians(c.min_sigma_theta_deg) ** 2])
+        # with one, on the tuning seeds). The 2-point fit sees the levelling error itself.
+        f_xy, f_th = ((c.two_point_min_sigma_xy, c.two_point_min_sigma_theta_deg) if status == STATUS_2PT
+                      else (c.min_sigma_xy, c.min_sigma_theta_deg))
+        cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, f_xy ** 2, math.radians(f_th) ** 2])
         recent = self._remember_translation(t)
         self._last_motion = (float(yaw), np.mean(recent, axis=0))
         # the guess averages the window: one step's error enters it divided by its length

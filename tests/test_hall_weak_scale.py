@@ -19,11 +19,12 @@ T_BASE_CAM = np.array([[0.0, 0.0, 1.0, 0.1], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 
 MOUNT_SE2 = g.mount_se2(T_BASE_CAM)
 
 
-def _hall_matches(yaw: float, t: np.ndarray, n_far: int, n_depth: int, seed: int):
-    """Levelled ``(x1, x2, P1, P2)``: ``n_far`` corners 6-15 m away without depth (NaN) and
-    ``n_depth`` floor corners 1.5-3.5 m away with Kinect-like depth noise; 0.3 px image noise."""
+def _hall_matches(yaw: float, t: np.ndarray, n_far: int, n_depth: int, seed: int, far_m=(6.0, 15.0)):
+    """Levelled ``(x1, x2, P1, P2)``: ``n_far`` corners ``far_m`` (6-15 m) away without depth
+    (NaN) and ``n_depth`` floor corners 1.5-3.5 m away with Kinect-like depth noise; 0.3 px
+    image noise."""
     rng = np.random.default_rng(seed)
-    far = np.column_stack([rng.uniform(-6, 6, n_far), rng.uniform(-2.5, 0.7, n_far), rng.uniform(6, 15, n_far)])
+    far = np.column_stack([rng.uniform(-6, 6, n_far), rng.uniform(-2.5, 0.7, n_far), rng.uniform(*far_m, n_far)])
     near = np.column_stack([rng.uniform(-1, 1, n_depth), np.full(n_depth, 0.8), rng.uniform(1.5, 3.5, n_depth)])
     X1 = np.vstack([far, near])
     c, s = math.cos(yaw), math.sin(yaw)
@@ -51,8 +52,10 @@ def _step(x1, x2, P1, P2):
 
 
 def test_few_depths_still_give_the_metric_step():
-    """From rest, 7 of 107 matches with depth: the step is measured, not bridged at zero."""
-    yaw, t = math.radians(0.3), np.array([0.004, 0.0, 0.03])
+    """From rest, 7 of 107 matches with depth: the step is measured, not bridged at zero.
+    The base drives 30 mm along its heading (a 4 mm sideways slide, as this test once drove,
+    is 3 sigma off the wheeled base's prior, odometry.lateral_slip)."""
+    yaw, t = _weaving_step(math.radians(0.3), 0.03)
     truth, _ = lev_motion_to_base_step(yaw, t, None, MOUNT_SE2)
     for seed in range(3):
         step = _step(*_hall_matches(yaw, t, 100, 7, seed))
@@ -147,3 +150,49 @@ def test_partial_step_measures_its_translation_from_a_few_depths():
     assert np.all(np.abs(normalised) < 3.0)
     rms = np.sqrt(np.mean(np.square(normalised), axis=0))
     assert np.all(rms < 2.0) and np.all(rms > 0.3)   # the stated sigma is the real error's
+
+
+def _weaving_step(theta: float, forward: float):
+    """Levelled ``(yaw, t)`` of a wheeled base's step that drives ``forward`` metres along
+    the chord of a ``theta`` rad heading change (no sideways slip), seen by the camera."""
+    base = np.array([forward, forward * math.tan(theta / 2.0), theta])
+    return g.pose_to_levelled_motion(g.base_step_to_lev_step(base, MOUNT_SE2))
+
+
+def _holonomic() -> PlanarOdometry:
+    from planar_vo.frontend.config import FrontendConfig, OdometryConfig
+    return PlanarOdometry(K, Mount(T_BASE_CAM), FrontendConfig(odometry=OdometryConfig(lateral_slip=0.0)))
+
+
+def test_weaving_on_far_corners_keeps_the_two_point_yaw():
+    """An open hall, the heading weaving 0.25-0.4 deg a frame at 80 mm a frame, with 100
+    corners 4.5-9 m away without depth (beyond the sensor's range, near enough that the
+    translation shows) and 3 near ones with depth: too few depths for a whole 2-point step.
+    Far corners let the yaw trade off against the sideways direction, so such steps were
+    bridged at the last turn rate, and a weave's turn-rate change went uncorrected (0.1-0.4
+    deg a step, 3-4 deg over one low-texture tuning hall's 10-step gaps). A wheeled base
+    follows its heading, which pins the valley: the step is partial at the fit's yaw."""
+    errors, bridged_errors = [], []
+    for seed, deg in enumerate((0.25, -0.3, 0.4, -0.35, 0.3, -0.25)):
+        theta = math.radians(deg)
+        yaw, t = _weaving_step(theta, 0.08)
+        truth, _ = lev_motion_to_base_step(yaw, t, None, MOUNT_SE2)
+        assert abs(truth[2] - theta) < 1e-9 and abs(truth[1] - 0.08 * math.tan(theta / 2)) < 1e-9
+        data = _hall_matches(yaw, t, 100, 3, 40 + seed, far_m=(4.5, 9.0))
+        step = _step(*data)
+        assert step.status == STATUS_PARTIAL
+        errors.append(math.degrees(step.pose[2] - truth[2]))
+        sd = math.degrees(math.sqrt(np.linalg.inv(step.information)[2, 2]))
+        assert abs(errors[-1]) < 4.0 * sd and sd < 0.2
+        # a holonomic base (lateral_slip 0) has no such prior: the step is bridged
+        odo = _holonomic()
+        x1, x2, P1, P2 = data
+        info = FrameDiagnostics()
+        info.floor_seen = True
+        hol, _ = odo._estimate(_Prev(None, x1, P1, [], []), x2, P2,
+                               np.column_stack([np.arange(len(x1)), np.arange(len(x1))]), [], [], 0.0, info, [])
+        assert hol.status == STATUS_BRIDGED
+        bridged_errors.append(math.degrees(hol.pose[2] - truth[2]))
+    # measured: 0.00-0.02 deg; a bridge with no turn rate errs by the whole 0.25-0.4 deg
+    assert max(abs(e) for e in errors) < 0.05
+    assert min(abs(e) for e in bridged_errors) > 0.2

@@ -26,8 +26,10 @@ T_BASE_CAM = np.array([[0.0, 0.0, 1.0, 0.2], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 
 MOUNT_SE2 = g.mount_se2(T_BASE_CAM)
 
 
-def _odometry(dt: float) -> PlanarOdometry:
-    odo = PlanarOdometry(K, Mount(T_BASE_CAM))
+def _odometry(dt: float, lateral_slip: float | None = None) -> PlanarOdometry:
+    from planar_vo.frontend.config import FrontendConfig, OdometryConfig
+    cfg = None if lateral_slip is None else FrontendConfig(odometry=OdometryConfig(lateral_slip=lateral_slip))
+    odo = PlanarOdometry(K, Mount(T_BASE_CAM), cfg)
     odo._dt = dt
     return odo
 
@@ -58,8 +60,9 @@ def test_guess_states_the_error_of_the_step_it_copies():
 
 def test_partial_steps_copy_the_measured_translation_not_their_own(monkeypatch):
     """A partial step whose wall pair put it 17 mm sideways must not hand that offset to
-    the next guesses: they copy the last measured translation."""
-    odo = _odometry(0.05)
+    the next guesses: they copy the last measured translation. (A holonomic base: a wheeled
+    one's prior holds the step near its heading, see the next test.)"""
+    odo = _odometry(0.05, lateral_slip=0.0)
     t_true = np.array([0.0, 0.0, -0.014])
     _measure(odo, 0.0, t_true, 0.002)
     odo._last_motion = (0.0, t_true.copy())
@@ -73,6 +76,22 @@ def test_partial_steps_copy_the_measured_translation_not_their_own(monkeypatch):
     for _ in range(10):
         step, _ = odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
         assert np.abs(step.pose[:2] - true_step[:2]).max() < 0.002
+
+
+def test_a_wheeled_base_resists_a_wrong_sideways_wall(monkeypatch):
+    """The same wrong wall pair (17 mm sideways at a 2 mm sigma) on a wheeled base: the
+    step's guess runs along its heading within 0.5 mm + 3 % of the 14 mm step
+    (odometry.lateral_slip), so the wall moves it 3 mm (information-weighted), not 17."""
+    odo = _odometry(0.05)
+    t_true = np.array([0.0, 0.0, -0.014])
+    _measure(odo, 0.0, t_true, 0.002)
+    odo._last_motion = (0.0, t_true.copy())
+    with monkeypatch.context() as m:
+        m.setattr(odometry_module, "wall_constraints", lambda *a, **k: [(np.array([1.0, 0.0]), 0.017, 0.002 ** 2)])
+        step, _ = odo._partial_or_bridge([], [], (0.0, math.radians(0.05), 0.0), MOUNT_SE2, FrameDiagnostics())
+    true_step, _ = lev_motion_to_base_step(0.0, t_true, None, MOUNT_SE2)
+    assert abs(step.pose[1] - true_step[1]) < 0.004
+    assert abs(step.pose[1] - true_step[1]) / math.sqrt(np.linalg.inv(step.information)[1, 1]) < 4.0
 
 
 def test_guess_copies_the_mean_of_the_last_measured_steps():
@@ -92,3 +111,23 @@ def test_guess_copies_the_mean_of_the_last_measured_steps():
         assert step.status == STATUS_PARTIAL
         total += step.pose[:2] - true_step[:2]
     assert abs(total[0]) < 20 * 0.0007   # 20 x 0.6 mm, not 20 x 3 mm
+
+
+def test_guess_sigma_stops_growing_at_the_top_speed():
+    """30 Hz, 13 mm steps measured, then 300 partial steps with nothing measuring the
+    distance along. The guess's sigma grows with the acceleration limit (0.5 m/s^2, 0.55
+    mm a frame here) but never beyond what the top speed allows in one frame
+    (odometry.bridge_max_speed 1 m/s, 33 mm): at 11 cm after 200 frames, a wall paired with
+    another plane 27 cm off passed the 5-sigma gate as a measurement of a 13 mm step and
+    the guesses copied it (a textureless tuning log, 2.7 -> 56 % drift)."""
+    odo = _odometry(1.0 / 30.0)
+    for err in (-0.001, 0.001, -0.001, 0.001, 0.0):   # measured with a millimetre's noise
+        _measure(odo, 0.0, np.array([0.0, 0.0, -0.013 + err]), 0.001)
+    mf_yaw = (0.0, math.radians(0.05), 0.0)
+    sigmas = []
+    for _ in range(300):
+        odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
+        sigmas.append(odo._bridge_sigmas(False)[0])
+    assert sigmas[10] < 0.01                      # a few frames on: millimetres
+    assert max(sigmas) <= 1.0 / 30.0 + 0.001      # the top speed's step, not 300 x 0.55 mm
+    assert sigmas[-1] > 0.03                      # and it does get there

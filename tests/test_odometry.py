@@ -152,7 +152,7 @@ def test_untextured_hall_is_bridged_not_guessed():
     _check_steps(results)
     guessed = [r for r in results[1:] if r.step.status in (STATUS_BRIDGED, STATUS_PARTIAL)]
     assert len(guessed) >= 0.7 * (len(results) - 1)
-    z, zb = [], []
+    z, zb, partial_yaw = [], [], []
     for r, f0, f1 in zip(results[1:], frames[:-1], frames[1:]):
         cov = np.linalg.inv(r.step.information)
         e = r.step.pose - g.se2_between(f0.pose_world_base, f1.pose_world_base)
@@ -162,12 +162,19 @@ def test_untextured_hall_is_bridged_not_guessed():
             assert r.diagnostics.bridge in ("constant_velocity", "zero") and r.step.inliers == 0
             zb.append(e / np.sqrt(np.diag(cov)))
         elif r.step.status == STATUS_PARTIAL:
-            # the yaw is measured; the translation only where walls pair up
-            assert math.degrees(math.sqrt(cov[2, 2])) < 0.6
+            # the yaw is measured (Manhattan or 2-point, at most the sigma a whole step may
+            # state, odometry.max_sigma_theta_deg); the translation only where walls pair up
+            assert math.degrees(math.sqrt(cov[2, 2])) < 1.0
             z.append(e / np.sqrt(np.diag(cov)))
+            partial_yaw.append(math.degrees(e[2]))
         else:
             assert np.linalg.norm(e[:2]) < 0.03 and abs(math.degrees(e[2])) < 0.5, (f1.rgbd.index, e)
-    assert len(z) >= 10 and len(zb) >= 10
+    # measured: 76 partial, 9 bridged (a wheeled base's 2-point yaw makes most former
+    # bridges partial steps)
+    assert len(z) >= 10 and len(zb) >= 5
+    # measured: 0.05 deg RMS (the 2-point yaw of a wheeled base's step without a scale, or a
+    # wall's); a bridge's guess errs by the turn-rate change, up to 0.5 deg a step here
+    assert math.sqrt(np.mean(np.square(partial_yaw))) < 0.1
     # partial and bridged steps agree with their sigmas, component by component
     for zz in (z, zb):
         assert np.all(np.sqrt(np.mean(np.square(zz), axis=0)) < 2.0), np.sqrt(np.mean(np.square(zz), axis=0))
