@@ -771,8 +771,8 @@ class PlanarOdometry:
         a wheeled base at the measured ``yaw`` (rad): the guess ``t_guess`` (2,) gives only
         the distance along (sigma ``sb``, m); the base_link step runs along the chord of its
         heading change, ``y = x tan(yaw / 2)``, off it by the slip (``lateral_floor_m +
-        lateral_slip |x|``). With an isotropic guess a wall paired with the wrong plane (a box
-        face) moved a turning step 58 mm sideways, stated at 2.8 mm, on an untextured hall."""
+        lateral_slip |x|``). With an isotropic guess a wall paired with another plane moved a
+        turning step 58 mm sideways, stated at 2.8 mm, on an untextured test hall."""
         c = self.config.odometry
 
         def base_xy(tx: float, tz: float) -> np.ndarray:
