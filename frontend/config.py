@@ -280,8 +280,9 @@ class OdometryConfig:
     min_sigma_theta_deg: float = 0.02
     #: The same floors for 2-point steps. Their refinement fits the levelling error itself
     #: (the tilted model of Sec. 2.2), so their residuals see what the floors above stand
-    #: for: on the halls of tuning seeds 3500-3607 (5032 steps) the floors above made their
-    #: stated sideways and yaw sigmas ~3x their errors (normalised RMS 0.30 / 0.37); at these
+    #: for: over the 5032 2-point steps of tuning seeds 3500-3607 (nearly all on halls) the
+    #: floors above made their stated sideways and yaw sigmas ~3x their errors (normalised
+    #: RMS 0.30 / 0.37); at these
     #: values 0.63 / 0.65 (forward, not floored: 1.24). The graph floors every step again
     #: (backend.step_min_sigma_xy), for errors shared by many steps that no step's sigma states.
     two_point_min_sigma_xy: float = 0.0002
