@@ -58,6 +58,7 @@ __all__ = [
     "estimate_planar_motion_2pt_metric",
     "estimate_planar_motion_dpp",
     "count_depth_inliers",
+    "score_depth_matches",
     "PlanarTwoPointEstimator",
     "ransac",
     "levelling_tilt",
@@ -931,6 +932,16 @@ def count_depth_inliers(P1, P2, motion: PlanarMotion, options: DirPointOptions |
     ignored); ``depth_scale``: ``(s1 (N,), s2 (N,))`` or None, as for
     :func:`estimate_planar_motion_dpp`. Scores competing hypotheses on the same data.
     """
+    return score_depth_matches(P1, P2, motion, options, depth_scale)[0]
+
+
+def score_depth_matches(P1, P2, motion: PlanarMotion, options: DirPointOptions | None = None,
+                        depth_scale=None) -> tuple[int, float]:
+    """``(inliers, cost)`` of a planar motion on the 3-D matches: the inlier count of
+    :func:`count_depth_inliers` and the truncated chi-square sum (each match's whitened
+    squared residual, capped at ``options.chi2``; MSAC). Arguments as there. The cost
+    still ranks two motions whose counts tie (a yaw a degree apart moves points 2 m ahead
+    by 3.5 cm, often inside the gate)."""
     opt = options or DirPointOptions()
     P1 = _as_points("P1", P1, 3, allow_nan=True)
     P2 = _as_points("P2", P2, 3, allow_nan=True)
@@ -938,12 +949,13 @@ def count_depth_inliers(P1, P2, motion: PlanarMotion, options: DirPointOptions |
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(P1).all(1) & np.isfinite(P2).all(1) & (P1[:, 2] > 0) & (P2[:, 2] > 0)
     if not valid.any():
-        return 0
+        return 0, 0.0
     N = P1.shape[0]
     s1, s2 = (np.ones(N), np.ones(N)) if depth_scale is None else map(np.asarray, depth_scale)
     _, _, dx, dz, vx, vz = _dpp_candidates(P1[valid], P2[valid], float(motion.yaw), opt, (s1[valid], s2[valid]))
     t = np.asarray(motion.t, float)
-    return int(((dx - t[0]) ** 2 / vx + (dz - t[2]) ** 2 / vz < opt.chi2).sum())
+    r2 = (dx - t[0]) ** 2 / vx + (dz - t[2]) ** 2 / vz
+    return int((r2 < opt.chi2).sum()), float(np.minimum(r2, opt.chi2).sum())
 
 
 def _dpp_candidates(Q1: np.ndarray, Q2: np.ndarray, yaw: float, opt: DirPointOptions,

@@ -200,16 +200,24 @@ class ManhattanTracker:
                 f.prev_score = best.ref_score
             f.age = best.age + 1 if consecutive and not ambiguous else 1
 
-    def commit(self, frames: list[LocalFrame], yaw_step: float, yaw_var: float = 0.0) -> None:
+    def commit(self, frames: list[LocalFrame], yaw_step: float, yaw_var: float = 0.0,
+               distrusted: frozenset[int] | set[int] = frozenset()) -> None:
         """After the step into this image is known (yaw, rad, and its variance, rad^2):
         update, carry and prune tracks. An observation becomes its track's reference when
-        its sigma is at most ``ref_max_sigma_deg``; else the reference is carried."""
+        its sigma is at most ``ref_max_sigma_deg``; else the reference is carried.
+        ``distrusted``: track ids whose observation here contradicted the step (vetoed):
+        the track counts as seen, but its heading and reference are carried, so the next
+        step is measured from the walls it followed, not from the jump."""
         seen = {f.track_id: f for f in frames}
         ref_max = math.radians(self.config.ref_max_sigma_deg)
         kept = []
         for t in self._tracks:
             f = seen.pop(t.id, None)
-            if f is not None:
+            if f is not None and t.id in distrusted:
+                t.heading = float(wrap_quarter(t.heading - yaw_step))
+                t.last_seen, t.missed, t.age = self._frame, 0, f.age
+                f = None  # carry the reference below
+            elif f is not None:
                 t.heading, t.last_seen, t.missed, t.age = f.heading, self._frame, 0, f.age
             else:
                 t.heading = float(wrap_quarter(t.heading - yaw_step))

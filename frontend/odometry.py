@@ -37,7 +37,7 @@ from planar_vo.core import geometry
 from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
-                                           count_depth_inliers, estimate_planar_motion_2pt_metric,
+                                           estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
 from planar_vo.frontend.features import FeatureSet, FeatureTracker
 from planar_vo.frontend.levelling import Levelling, LevellingState
@@ -367,7 +367,10 @@ class PlanarOdometry:
         t4 = clock()
         timings["estimate"] = t4 - t3
 
-        self._manhattan.commit(frames, lev_motion[0], lev_motion[2])
+        # a vetoed observation (a group whose walls changed) must not become the reference
+        veto = info.yaw_check if info.yaw_check and info.yaw_check.get("vetoed") else None
+        self._manhattan.commit(frames, lev_motion[0], lev_motion[2],
+                               distrusted={veto["track_id"]} if veto else frozenset())
         self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls, planes)
         mount_yaw = geometry.mount_se2(self.mount.T_base_cam)[2]
         observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
@@ -564,12 +567,12 @@ class PlanarOdometry:
         frame can come back on another surface within the tracking gate -- a box face 5 deg
         off the one it followed -- and the whole jump would enter one step as rotation
         (-5.2 deg on a tuning hall, the 2-point yaw agreeing with ``local``). Beyond
-        ``dpp_veto_sigmas`` of the step's sigma and ``dpp_veto_min_deg`` the frame is not
-        used for this step; its observation then becomes the track's new reference.
+        ``dpp_veto_sigmas`` of the step's sigma and ``reference_jump_min_deg`` the frame is
+        not used for this step; its observation then becomes the track's new reference.
         """
         c = self.config.odometry
         d = abs(float(geometry.wrap_angle(yaw - local)))
-        if d <= max(c.dpp_veto_sigmas * yaw_sigma, math.radians(c.dpp_veto_min_deg)):
+        if d <= max(c.dpp_veto_sigmas * yaw_sigma, math.radians(c.reference_jump_min_deg)):
             return False
         info.rejected.append({"track_id": f.track_id, "reference_jump_deg": math.degrees(d)})
         return True
@@ -683,7 +686,8 @@ class PlanarOdometry:
         the 2-point yaw may only veto it, never pull it (a biased 2-point yaw with a small
         variance would bend every step the same way and the chain would collect it).
         A veto needs the 2-point motion to explain the 3-D matches at least as well as the
-        direction-plus-point one (:func:`count_depth_inliers`, same test for both): a wrong
+        direction-plus-point one (:func:`score_depth_matches`, same test for both; below
+        ``dpp_veto_tie_deg``, where counts often tie, at a lower truncated cost too): a wrong
         association leaves the 1-point translation few agreeing points, whereas a 2-point
         fit pulled along the yaw/sideways ambiguity by far image matches explains fewer
         depths than the walls' yaw does (five such steps at a 37 deg junction, each 2.6-2.9
@@ -695,14 +699,16 @@ class PlanarOdometry:
         d = float(geometry.wrap_angle(dpp[3] - two[0].yaw))
         gate = max(c.dpp_veto_sigmas * math.sqrt(var + var2), math.radians(c.dpp_veto_min_deg))
         check = {"dpp_minus_2pt_deg": math.degrees(d), "sigma_deg": math.degrees(math.sqrt(var + var2)),
-                 "vetoed": abs(d) > gate}
+                 "vetoed": abs(d) > gate, "track_id": dpp[2]}
         info.yaw_check = check
         if not check["vetoed"]:
             return False
-        n_dpp = count_depth_inliers(pts[0], pts[1], replace(dpp[0], yaw=dpp[3]), self._dpp_opt, pts[2])
-        n_two = count_depth_inliers(pts[0], pts[1], two[0], self._dpp_opt, pts[2])
-        check.update(dpp_support=n_dpp, two_point_support=n_two)
+        n_dpp, cost_dpp = score_depth_matches(pts[0], pts[1], replace(dpp[0], yaw=dpp[3]), self._dpp_opt, pts[2])
+        n_two, cost_two = score_depth_matches(pts[0], pts[1], two[0], self._dpp_opt, pts[2])
+        check.update(dpp_support=n_dpp, two_point_support=n_two, dpp_cost=cost_dpp, two_point_cost=cost_two)
         check["vetoed"] = n_two >= c.dpp_veto_support_ratio * n_dpp
+        if abs(d) < math.radians(c.dpp_veto_tie_deg):
+            check["vetoed"] &= cost_two < cost_dpp
         return check["vetoed"]
 
     def _partial_or_bridge(self, walls1, walls2, mf_yaw, mount_se2, info, pts=None):

@@ -12,6 +12,7 @@ from planar_vo.frontend.estimators import (
     TwoPointOptions,
     _Matches,
     count_depth_inliers,
+    score_depth_matches,
     _sampson_residuals_2,
     _sampson_tilted,
     estimate_planar_motion_2pt,
@@ -317,6 +318,27 @@ def test_count_depth_inliers_prefers_the_true_motion_over_one_off_along_the_ambi
     P1 = p.P1.copy()
     P1[:50] = np.nan  # rows without depth never count
     assert count_depth_inliers(P1, p.P2, true, opt) <= n_true - (p.inliers[:50].sum() - 2)
+
+
+def test_depth_score_ranks_yaws_whose_counts_nearly_tie():
+    """A yaw 0.2 deg off, its translation refit, keeps nearly every depth inside the gate
+    (the counts differ by under 7 %); the truncated chi-square cost still ranks it 20 %+
+    worse, so the veto's small-angle test has something to compare."""
+    opt = DirPointOptions(focal_px=F)
+    for seed in (29, 30, 31):
+        rng = np.random.default_rng(seed)
+        p = make_planar_problem(rng, 200, noise_px=0.5, outlier_ratio=0.2, depth_noise=0.004, scene_depth=1.5)
+        true = PlanarMotion(p.yaw, np.asarray(p.t, float))
+        n_true, c_true = score_depth_matches(p.P1, p.P2, true, opt)
+        assert n_true == count_depth_inliers(p.P1, p.P2, true, opt)
+        d = math.radians(0.2)
+        inl = p.inliers & np.isfinite(p.P1).all(1)
+        t_off = np.mean(p.P2[inl] - p.P1[inl] @ rot_y(p.yaw + d).T, axis=0)  # refit at the wrong yaw
+        n_off, c_off = score_depth_matches(p.P1, p.P2, PlanarMotion(p.yaw + d, t_off), opt)
+        assert n_true - 12 <= n_off <= n_true   # measured 4-8 fewer of ~157
+        assert c_off > 1.15 * c_true            # measured 1.23-1.30x
+    nan = np.full((5, 3), np.nan)
+    assert score_depth_matches(nan, nan, true, opt) == (0, 0.0)
 
 
 def test_dpp_degenerate_inputs():
