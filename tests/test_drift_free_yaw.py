@@ -122,9 +122,10 @@ def test_a_group_heading_that_jumps_is_vetoed_by_the_two_point_yaw(wobble, monke
     Every third frame here the dominant frame's heading jumps by 1 deg, its walls' own
     headings staying put; the wall-by-wall check, which would catch that, is switched off,
     as it did not catch the tuning hall's jumps (there the walls' fits moved too). The
-    2-point yaw, 1 deg and many sigmas away, vetoes the step into the jump (below the 2 deg
-    the veto used to need, each went through 1 deg off), and the jumped observation does
-    not become the track's reference, so the step out of it is right as well."""
+    2-point yaw, 1 deg and many sigmas away, vetoes the step into the jump, and the jumped
+    observation does not become the track's reference, so the step out of it is right as
+    well: measured, steps into and out of jumps err at most 0.02 / 0.12 deg and 3 mm
+    sideways; with the 2 deg gate the veto used to need, up to 1.1 deg and 29 mm."""
     K, mount, frames = wobble
     real = odometry_module.group_walls
     jump = {"on": False}
