@@ -51,6 +51,10 @@ class BackendConfig:
     bridged_policy: Literal["frontend", "override"] = "frontend"
     bridged_sigma_xy: float = 0.5            # m
     bridged_sigma_theta_deg: float = 30.0    # deg
+    #: A step the front-end measured against an earlier keyframe (``Step.keyframe``) enters
+    #: as a factor from that keyframe, not from the previous frame. False: every step is a
+    #: factor from the previous frame (the steps are then not independent).
+    keyframe_links: bool = True
 
     #: Motion prior next to steps whose translation vision did not measure (partial,
     #: bridged): the base_link velocity of consecutive steps agrees within this acceleration
@@ -61,6 +65,13 @@ class BackendConfig:
     #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
     #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2 (the front-end's bridged guess uses the same 30).
     motion_prior_yaw_accel_deg: float = 30.0
+    #: Where the motion prior applies, leave out of a step's information what the front-end's
+    #: own constant-velocity guess contributed (``Step.guess_information``): the prior states
+    #: the same thing, tied to the measured steps on both sides of a gap. Off by default: on
+    #: the tuning seeds 3700-3707 it helped the two textureless corridors (smoothed 6.63 ->
+    #: 5.72 %, 3.08 -> 2.63 %) and hurt a low-texture 30 Hz hall (0.95 -> 2.97 %), whose
+    #: guesses average five measured steps where the prior ties a gap to the one next to it.
+    motion_prior_replaces_guess: bool = False
 
     # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)
     #: Use the log's wheel odometry when it has one (``--no-wheel-odom`` turns it off).
@@ -181,7 +192,8 @@ class BackendConfig:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
-                     "manhattan_instance_size", "closure_max_error_sigmas", "motion_prior_accel", "closure_min_sigma_xy",
+                     "manhattan_instance_size", "closure_max_error_sigmas", "motion_prior_accel",
+                     "closure_min_sigma_xy",
                      "closure_min_sigma_theta_deg",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:

@@ -43,6 +43,19 @@ class ManhattanObservation:
 
 
 @dataclass
+class KeyframeLink:
+    """The motion of base_link from a keyframe ``lag`` frames back to this frame, measured
+    directly (not chained): ``pose`` (3,) ``T_base_k_base_curr`` as ``(x, y, theta)`` with
+    (3, 3) ``information`` in gtsam.Pose2 tangent order. The back-end puts this factor in
+    place of the step's own (the step is then the difference of two keyframe motions and
+    its error is not independent of the previous step's)."""
+
+    lag: int
+    pose: np.ndarray
+    information: np.ndarray
+
+
+@dataclass
 class Step:
     """Relative motion of base_link from the previous frame to this one.
 
@@ -51,13 +64,20 @@ class Step:
     ``[x, y, theta]``. ``status``: one of STATUS_*. ``inliers``: inlier count of the
     estimator that produced it (0 when bridged; for a partial step, the walls that fixed
     part of the translation). A partial step's information is large on theta and on the
-    translation directions its walls observe, small elsewhere.
+    translation directions its walls observe, small elsewhere. ``keyframe``: the motion
+    from the keyframe the step was measured against, when that is an earlier frame than
+    the previous one (:class:`KeyframeLink`), else None. ``guess_information``: (3, 3),
+    the part of ``information`` that comes from the front-end's constant-velocity guess
+    rather than a measurement (partial and bridged steps), else None: a back-end with a
+    motion prior of its own puts that prior in its place, not on top of it.
     """
 
     pose: np.ndarray
     information: np.ndarray
     status: str
     inliers: int = 0
+    keyframe: KeyframeLink | None = None
+    guess_information: np.ndarray | None = None
 
 
 @dataclass
@@ -88,6 +108,9 @@ class FrameDiagnostics:
     rejected: list[dict] = field(default_factory=list)  # estimates refused, and why
     partial: dict | None = None       # a partial step: the prior's kind and the walls used
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
+    #: the keyframe the step was measured against: frames since it, its corners still
+    #: tracked, whether the step was re-measured against it (frontend/keyframe.py)
+    keyframe: dict | None = None
 
 
 @dataclass

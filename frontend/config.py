@@ -240,8 +240,11 @@ class OdometryConfig:
     dpp_veto_tie_deg: float = 2.0
     #: A track's carried reference jumped to another surface when the step's yaw and the
     #: frame-to-frame one differ beyond ``dpp_veto_sigmas`` and this many degrees (the
-    #: correction they differ by is normally a few tenths of a degree).
-    reference_jump_min_deg: float = 2.0
+    #: correction they differ by is normally a few tenths of a degree, and its sigma is in
+    #: the first term). 2 deg let eleven 0.7-1.45 deg jumps through on the tuning hall of
+    #: seed 3707 (smoothed drift 4.98 -> 1.07 % with 0.5; one other log of seeds 3700-3707
+    #: moved, lturn_s3701 0.10 -> 0.18 %).
+    reference_jump_min_deg: float = 0.5
     #: The frame's yaw is checked against eq. 1 applied wall by wall; beyond this many
     #: sigmas the group's walls changed and the wall-by-wall yaw is used.
     wall_yaw_check_sigmas: float = 3.0
@@ -258,9 +261,30 @@ class OdometryConfig:
     #: (254 partial steps of tuning logs 3100-3107: normalised RMS 0.35 -> 0.54 with this
     #: floor and none sideways on partial steps, A/B at 8ed9658; 0.61 over 334 at 3e78abf)
     wall_min_sigma_m: float = 0.0015
+    #: Steps measured from points are re-measured against a keyframe (frontend/keyframe.py):
+    #: the motion from the keyframe with the same estimator, the step the difference of two
+    #: such motions, so that depth noise does not add up step by step. A keyframe is renewed
+    #: when fewer than ``keyframe_min_fraction`` of the corners it had one frame later are
+    #: still tracked, or the motion from it exceeds ``keyframe_max_baseline_m`` /
+    #: ``keyframe_max_yaw_deg``. The re-measured motion must agree with the chained steps
+    #: within ``keyframe_gate_chi2`` (3 dof, both covariances). False: frame to frame only.
+    keyframes: bool = True
+    #: Direction-plus-point steps too (their translation solved again from the keyframe at
+    #: the chained yaw). Off: a direction-plus-point step makes its frame the keyframe. On
+    #: the corridors of tuning seeds 3700-3707, where such steps dominate, re-measuring them
+    #: made the chains' errors over 100 frames larger (3.3 -> 5.4 mm on straight_s3707):
+    #: their frame-to-frame errors do not add up as the 2-point steps' do.
+    keyframe_dpp: bool = False
+    keyframe_min_fraction: float = 0.5
+    keyframe_max_baseline_m: float = 1.0
+    keyframe_max_yaw_deg: float = 30.0
+    keyframe_gate_chi2: float = 16.27
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1
+    #: ... and lying within this rms distance of that line (pixels): a wide, flat band of
+    #: corners (boxes and pillars across a hall, 10-25 px off its axis) is not a line.
+    min_inlier_spread_px: float = 5.0
     #: Walls farther than this do not fix translations: Kinect v2 depth ends at 4.5 m, and
     #: a plane near the cut-off keeps only the points noise brought nearer (7-11 cm bias).
     wall_max_offset_m: float = 4.0

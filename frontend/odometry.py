@@ -40,6 +40,7 @@ from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOption
                                            estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
 from planar_vo.frontend.features import FeatureSet, FeatureTracker
+from planar_vo.frontend.keyframe import KeyframeTracker
 from planar_vo.frontend.levelling import Levelling, LevellingState
 from planar_vo.frontend.manhattan import LocalFrame, ManhattanTracker, group_walls
 from planar_vo.frontend.planarity import out_of_plane_motion
@@ -47,7 +48,7 @@ from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.pointplanes import refine_pairs_on_planes
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
 from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
-                                      FrameResult, ManhattanObservation, Step)
+                                      FrameResult, KeyframeLink, ManhattanObservation, Step)
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
@@ -77,27 +78,35 @@ def lev_motion_to_base_step(yaw: float, t: np.ndarray, cov: np.ndarray | None,
 
     ``yaw``, ``t`` (3,): ``X_lev2 = R_y(yaw) X_lev1 + t``; ``cov``: (3, 3) over
     ``(yaw, t_x, t_z)`` or None; ``m_base_lev``: :func:`geometry.mount_se2` of the mount.
-    The covariance is pushed through the (smooth) map by its Jacobian, taken by central
-    differences (the map is a few trigonometric terms, so this is exact to ~1e-10).
+    The covariance is pushed through the (smooth) map by its Jacobian
+    (:func:`lev_to_base_jacobian`).
     """
-    def f(p):
-        return geometry.lev_step_to_base_step(
-            geometry.levelled_motion_to_pose(p[0], np.array([p[1], 0.0, p[2]])), m_base_lev)
-
-    p0 = np.array([yaw, t[0], t[2]], dtype=float)
-    step = f(p0)
+    step = _lev_to_base(np.array([yaw, t[0], t[2]], dtype=float), m_base_lev)
     if cov is None:
         return step, None
+    J = lev_to_base_jacobian(yaw, t, m_base_lev)
+    return step, J @ cov @ J.T
+
+
+def _lev_to_base(p: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
+    return geometry.lev_step_to_base_step(geometry.levelled_motion_to_pose(p[0], np.array([p[1], 0.0, p[2]])),
+                                          m_base_lev)
+
+
+def lev_to_base_jacobian(yaw: float, t: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
+    """(3, 3) Jacobian of the base_link step ``(x, y, theta)`` with respect to the levelled
+    motion ``(yaw, t_x, t_z)`` (:func:`lev_motion_to_base_step`), by central differences
+    (the map is a few trigonometric terms, so this is exact to ~1e-10)."""
+    p0 = np.array([yaw, t[0], t[2]], dtype=float)
     J = np.empty((3, 3))
     h = 1e-6
     for k in range(3):
         d = np.zeros(3)
         d[k] = h
-        a, b = f(p0 + d), f(p0 - d)
-        diff = a - b
+        diff = _lev_to_base(p0 + d, m_base_lev) - _lev_to_base(p0 - d, m_base_lev)
         diff[2] = float(geometry.wrap_angle(diff[2]))
         J[:, k] = diff / (2 * h)
-    return step, J @ cov @ J.T
+    return J
 
 
 def _offset_var_fit(w: Plane) -> float:
@@ -111,17 +120,22 @@ def _offset_var_fit(w: Plane) -> float:
     return max(float(J @ w.cov_q @ J), 0.0)
 
 
-def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics) -> bool:
+def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics, min_across: float = math.inf) -> bool:
     """True when the (N, 2) image points lie along one line: the ratio of the smaller to
-    the larger principal spread is below ``min_spread``. On plain walls the only corners
-    are on the floor-wall junction, where KLT slides along the line (the aperture
-    problem) and the matches agree on a wrong motion along it."""
+    the larger principal spread is below ``min_spread`` and their rms distance from the
+    line is below ``min_across`` (normalised units). On plain walls the only corners are on
+    the floor-wall junction, where KLT slides along the line (the aperture problem) and
+    the matches agree on a wrong motion along it; they scatter off it by a pixel or two.
+    Corners of boxes and pillars across an open hall also fill a band that is wide but
+    flat (ratio 0.04-0.10 on a low-texture tuning hall), yet lie 10-25 px rms off its
+    axis: not a line, and their steps (13-16 agreeing depths) were bridged for it."""
     if len(x) < 3:
         return True
     sv = np.linalg.svd(x - x.mean(0), compute_uv=False)
     spread = float(sv[1] / sv[0]) if sv[0] > 0 else 0.0
-    if spread < min_spread:
-        info.rejected.append({"inlier_spread": spread})
+    across = float(sv[1] / math.sqrt(len(x)))
+    if spread < min_spread and across < min_across:
+        info.rejected.append({"inlier_spread": spread, "across_rms": across})
         return True
     return False
 
@@ -197,6 +211,19 @@ def inflate_crowded_yaw(cov: np.ndarray, cells: int, min_cells: float, depth: fl
         return cov * np.outer(d, d)
     v = np.array([1.0, -depth, 0.0])
     return cov + (k * k - 1.0) * cov[0, 0] * np.outer(v, v)
+
+
+def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool) -> np.ndarray:
+    """(3, 3) covariance over ``(yaw, t_x, t_z)`` of a step taken as the difference of two
+    motions from a keyframe: their errors share the keyframe's part, so the step errs by
+    about what one motion from the keyframe does (``cov_k``, guessed steps' share included),
+    not by the sum of two. When the motion from the keyframe kept the chained yaw (eq. 1
+    telescoping along a track), the step's yaw is the frame-to-frame estimate's own
+    (``cov_step``): its variance replaces the chained one, the correlations scaled with it."""
+    if not chained_yaw or cov_k[0, 0] <= 0:
+        return cov_k
+    d = np.array([math.sqrt(cov_step[0, 0] / cov_k[0, 0]), 1.0, 1.0])
+    return cov_k * np.outer(d, d)
 
 
 def _prior_cov(sigma_prior) -> np.ndarray:
@@ -293,6 +320,11 @@ class PlanarOdometry:
                                               seed=o.seed, lateral_slip=o.lateral_slip,
                                               lateral_floor_m=o.lateral_floor_m)
         self._prev: _Prev | None = None
+        self._keyframes = KeyframeTracker(o.keyframe_min_fraction, o.keyframe_max_baseline_m, o.keyframe_max_yaw_deg)
+        # this frame's keyframe.commit arguments: the motion keyframe -> this frame the step
+        # was taken from, or the step that was guessed, each with its covariance
+        self._kf_measured: tuple | None = None
+        self._kf_guessed: tuple | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
         # and its rate of change (_remember_translation, _bridge_sigmas)
@@ -355,15 +387,11 @@ class PlanarOdometry:
         timings["features"] = t_track + (t3 - t_lev)
         info.features, info.new_corners, info.matches = len(fs), new_corners, len(matches)
 
-        step = None
-        lev_motion = (0.0, np.zeros(3), 0.0)  # levelled (yaw, t, yaw variance)
         if self._last_stamp is not None and frame.stamp > self._last_stamp:
             self._dt = frame.stamp - self._last_stamp
         self._last_stamp = frame.stamp
         planes = list(det.walls) + ([det.floor] if det.floor is not None else [])
-        if self._prev is not None:
-            step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, det.walls, yaw_prior,
-                                              info, planes)
+        step, lev_motion = self._measure(x_lev, P_lev, matches, frames, det.walls, planes, yaw_prior, info)
         t4 = clock()
         timings["estimate"] = t4 - t3
 
@@ -380,6 +408,22 @@ class PlanarOdometry:
         timings["total"] = clock() - t_start
         self._n += 1
         return FrameResult(frame.index, frame.stamp, step, observations, timings, info)
+
+    def _measure(self, x_lev, P_lev, matches, frames, walls, planes, yaw_prior, info):
+        """``(step or None, levelled (yaw, t, yaw variance))`` into this frame: estimated
+        from the previous frame (:meth:`_estimate`), re-measured against the keyframe,
+        which this frame then carries on or becomes (frontend/keyframe.py)."""
+        step, lev_motion = None, (0.0, np.zeros(3), 0.0)
+        tracked = self._keyframes.follow(matches, len(x_lev))
+        self._kf_measured = self._kf_guessed = None
+        if self._prev is not None:
+            step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
+                                              planes)
+        age = self._keyframes.kf.age + 1 if self._keyframes.kf is not None else 0
+        renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
+                                         walls=step is not None and step.status == STATUS_DPP)
+        info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
+        return step, lev_motion
 
     def track(self, frame: RGBDFrame) -> None:
         """Run the feature stage of :meth:`process` for ``frame`` now, ahead of it.
@@ -465,7 +509,8 @@ class PlanarOdometry:
         pts = self._on_planes(prev, planes, P1, P2, yaw_prior)
         dpp, mf_yaw = self._dpp(prev, frames, walls, pts, int(depth_ok.sum()), yaw_prior, info)
         two = self._two_point(x1, x2, P1, P2, info, mount_se2)
-        dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info) else e
+        across = c.min_inlier_spread_px / self.intrinsics.fx
+        dpp, two = (None if e is None or _collinear(x2[e[1].inliers], c.min_inlier_spread, info, across) else e
                     for e in (dpp, two))
         # The veto needs only the 2-point yaw, which a refused scale leaves intact: in an
         # open hall a track jumping to a box face 5 deg off came with too few depths for a
@@ -481,14 +526,73 @@ class PlanarOdometry:
             if est is None:
                 continue
             motion, e = est[0], est[1]
-            if status == STATUS_2PT and self._velocity_jump(motion.t, e.covariance, info):
+            yaw, t, cov_t = motion.yaw, motion.t, e.covariance
+            kf = self._from_keyframe(status, (yaw, t), e.covariance, x_lev, P_lev, planes, mount_se2, info)
+            link = None
+            if kf is not None:
+                # the step is the difference of two motions from the keyframe: it also takes
+                # back what guessed steps since the last measurement got wrong
+                yaw, t = self._keyframes.step_from(kf[0])
+                link = (self._keyframes.kf.age + 1, kf[0], kf[1], self._keyframes.kf.guess_cov)
+                cov_t = _step_covariance(kf[1] + link[3], e.covariance, kf[2])
+            if status == STATUS_2PT and self._velocity_jump(t, cov_t, info):
                 continue
-            step = self._accept(motion.yaw, motion.t, e.covariance, status, e.num_inliers, mount_se2, info)
+            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t)
             if step is not None:
                 if status == STATUS_DPP:
                     self._dpp_track = est[2]
+                if kf is None and self.config.odometry.keyframes and not self._keyframes.active():
+                    # the keyframe is the previous frame: the step is the motion from it
+                    kf = ((yaw, np.asarray(t, float)), e.covariance)
+                self._kf_measured = kf[:2] if kf is not None else None
                 return step
         return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info, pts)
+
+    def _from_keyframe(self, status: str, step: tuple[float, np.ndarray], cov: np.ndarray, x_lev, P_lev, planes,
+                       mount_se2, info) -> tuple[tuple[float, np.ndarray], np.ndarray, bool] | None:
+        """``(motion, cov, chained)``: the motion keyframe -> this frame re-measured with the
+        step's estimator, its (3, 3) covariance over ``(yaw, t_x, t_z)`` and whether it kept
+        the chained yaw; or None (no earlier keyframe, too few corners, or a motion that
+        disagrees with the chained steps; frontend/keyframe.py).
+
+        ``step``: the step's levelled ``(yaw, t)`` with covariance ``cov``. A direction-plus-
+        point step keeps its Manhattan yaw (eq. 1 telescopes along the track): only the
+        translation is solved again (eq. 2) at the chained yaw; so is a 2-point step after
+        one since the keyframe (the chain's yaw is the walls'); a 2-point step on a 2-point
+        chain is solved again whole.
+        """
+        c, kt = self.config.odometry, self._keyframes
+        if not (c.keyframes and kt.active()) or (status == STATUS_DPP and not c.keyframe_dpp):
+            return None
+        kf = kt.kf
+        pred = kt.predicted(step)
+        x1, x2, P1, P2 = kt.correspondences(x_lev, P_lev)
+        n_depth = int((np.isfinite(P1).all(1) & np.isfinite(P2).all(1)).sum())
+        chained = status == STATUS_DPP or kf.walls
+        if chained:
+            pts = self._on_planes(kf, planes, P1, P2, pred[0])
+            yaw_sigma = math.sqrt(kf.cov[0, 0] + cov[0, 0])
+            motion, est = estimate_planar_motion_dpp(pts[0], pts[1], pred[0], self._dpp_opt, yaw_sigma=yaw_sigma,
+                                                     depth_scale=pts[2])
+            ok = (motion is not None and est.num_inliers >= c.dpp_min_inliers
+                  and est.num_inliers >= c.dpp_min_inlier_ratio * max(n_depth, 1))
+        else:
+            if len(x1) < 2:
+                return None
+            motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._two_point_options(mount_se2))
+            ok = (motion is not None and est.covariance is not None and est.num_inliers >= c.min_inliers
+                  and est.num_inliers >= c.min_inlier_ratio * len(x1)
+                  and int(est.scale_inliers.sum()) >= c.weak_scale_inliers)
+        if not ok:
+            return None
+        d = np.array([float(geometry.wrap_angle(motion.yaw - pred[0])), motion.t[0] - pred[1][0],
+                      motion.t[2] - pred[1][2]])
+        S = kf.cov + cov + est.covariance
+        m2 = float(d @ np.linalg.solve(S, d))
+        if not m2 <= c.keyframe_gate_chi2:
+            info.rejected.append({"status": status, "keyframe_sigmas": math.sqrt(m2), "keyframe_age": kf.age})
+            return None
+        return (float(motion.yaw), np.asarray(motion.t, float)), est.covariance, chained
 
     def _matched(self, prev: _Prev, x_lev, P_lev, matches, info):
         """Matched levelled coordinates and points ``(x1, x2, P1, P2, depth_ok)``; runs the
@@ -609,10 +713,7 @@ class PlanarOdometry:
         c = self.config.odometry
         if len(x1) < 2:
             return None
-        opt = self._2pt_opt
-        if c.lateral_slip > 0 and mount_se2 is not None:
-            opt = replace(opt, mount_se2=tuple(float(v) for v in mount_se2))
-        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, opt)
+        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._two_point_options(mount_se2))
         n_in = est.num_inliers
         cells = occupied_cells(x2[est.inliers]) if est.inliers is not None else 0
         if motion is not None and est.covariance is not None:
@@ -631,6 +732,13 @@ class PlanarOdometry:
                 and est.covariance is not None and est.covariance[0, 0] > 0):
             return motion, est
         return None
+
+    def _two_point_options(self, mount_se2=None) -> MetricTwoPointOptions:
+        """The 2-point options, with the wheeled base's no-sideways-slip prior when
+        ``odometry.lateral_slip`` is set and ``mount_se2`` (3,) is given."""
+        if self.config.odometry.lateral_slip > 0 and mount_se2 is not None:
+            return replace(self._2pt_opt, mount_se2=tuple(float(v) for v in mount_se2))
+        return self._2pt_opt
 
     def _weak_scale(self, two, mf_yaw, info):
         """``(two, yaw)``: the 2-point estimate kept as a whole step, or its yaw alone.
@@ -726,13 +834,7 @@ class PlanarOdometry:
         self._since_t += 1
         sb, s_theta = self._bridge_sigmas(how == "zero")
         if mf_yaw is None:
-            self._since_yaw += 1
-            # levelled (yaw, t_x, t_z), propagated like every other step: a camera ahead
-            # of base_link swings sideways with the yaw the guess gets wrong
-            cov = np.diag([s_theta ** 2, sb ** 2, sb ** 2])
-            pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
-            info.bridge = how
-            return Step(pose, np.linalg.inv(cov_b), STATUS_BRIDGED, 0), (yaw, t, s_theta ** 2)
+            return self._bridge(yaw, t, sb, s_theta, how, mount_se2, info)
         self._since_yaw = 0
         yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
         prior, prior_cov = np.array([t[0], t[2]]), sb
@@ -752,6 +854,12 @@ class PlanarOdometry:
         cov[1:, 1:] = cov_t + np.diag([0.0, c.min_sigma_xy ** 2])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         info.partial = {"prior": how, "walls": n_walls, "points": n_points}
+        self._kf_guessed = ((float(yaw), np.asarray(t, float)), cov)
+        # what of the step's information is the guess (its prior on the translation): the
+        # back-end's motion prior states the same constant velocity and takes its place
+        Ji = np.linalg.inv(lev_to_base_jacobian(yaw, t, mount_se2))
+        guess = np.zeros((3, 3))
+        guess[1:, 1:] = np.linalg.inv(_prior_cov(prior_cov))
         # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
         # takes back the errors of earlier guesses): the next guess turns at this rate. The
         # translation guess stays the last measured one, whose error _bridge_sigmas states:
@@ -770,7 +878,27 @@ class PlanarOdometry:
             # the bridge's full sigma (a ring started at cruise speed lost 1.9 m over 55
             # such steps stated at 2-26 cm)
             self._last_t_sigma = c.bridge_sigma_xy
-        return Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls), (yaw, t, sigma_yaw ** 2)
+        return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls, guess_information=Ji.T @ guess @ Ji),
+                (yaw, t, sigma_yaw ** 2))
+
+    def _bridge(self, yaw: float, t: np.ndarray, sb: float, s_theta: float, how: str, mount_se2, info):
+        """A bridged step: the guess ``(yaw, t)`` (levelled) at sigmas ``sb`` (m) and
+        ``s_theta`` (rad), all of its information a guess."""
+        c = self.config.odometry
+        self._since_yaw += 1
+        # levelled (yaw, t_x, t_z), propagated like every other step: a camera ahead
+        # of base_link swings sideways with the yaw the guess gets wrong
+        cov = np.diag([s_theta ** 2, sb ** 2, sb ** 2])
+        if c.lateral_slip > 0:
+            # a wheeled base does not slide: the guess is one of the distance along (the
+            # isotropic guess stated its sideways error 10x what it was on the tuning seeds)
+            prior, cov[1:, 1:] = self._wheeled_prior(yaw, np.array([t[0], t[2]]), sb, mount_se2)
+            t = np.array([prior[0], 0.0, prior[1]])
+        pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
+        info.bridge = how
+        self._kf_guessed = ((yaw, np.asarray(t, float)), cov)
+        information = np.linalg.inv(cov_b)
+        return Step(pose, information, STATUS_BRIDGED, 0, guess_information=information), (yaw, t, s_theta ** 2)
 
     def _wheeled_prior(self, yaw: float, t_guess: np.ndarray, sb: float, mount_se2: np.ndarray):
         """Levelled ``(t_x, t_z)`` prior (2,) and its (2, 2) covariance for a partial step of
@@ -887,10 +1015,23 @@ class PlanarOdometry:
         35.6 mm step (backwards), 2 deg off in yaw. Only while a measured translation is
         recent (``velocity_window`` frames) and three measured steps give the guess's spread."""
         c = self.config.odometry
+        m2 = self._velocity_m2(t, cov)
+        if m2 is None or m2 <= c.velocity_gate_sigmas ** 2:
+            return False
+        d = np.array([t[0] - self._last_motion[1][0], t[2] - self._last_motion[1][2]])
+        info.rejected.append({"status": STATUS_2PT, "velocity_jump_m": float(np.linalg.norm(d)),
+                              "sigmas": math.sqrt(m2)})
+        return True
+
+    def _velocity_m2(self, t: np.ndarray, cov: np.ndarray) -> float | None:
+        """Squared Mahalanobis distance of a levelled translation ``t`` (3,) with ``cov``
+        (3, 3) from the constant-velocity guess (:meth:`_velocity_jump`), or None while the
+        guess is not fit to judge (gate off, no recent measured translation)."""
+        c = self.config.odometry
         w = c.velocity_window
         if c.velocity_gate_sigmas <= 0 or self._last_motion is None \
                 or not any(self._n - e[0] < w for e in self._history):
-            return False
+            return None
         self._since_t += 1  # the guess is for this frame
         sb = self._bridge_sigmas(False)[0]
         self._since_t -= 1
@@ -900,17 +1041,19 @@ class PlanarOdometry:
         # not be refused (bridged, they copied the blunder: raw drift 1.4 -> 3.8 %)
         sb = max(sb, self._velocity_change(math.inf))
         if not math.isfinite(sb):
-            return False
+            return None
         d = np.array([t[0] - self._last_motion[1][0], t[2] - self._last_motion[1][2]])
-        m2 = float(d @ np.linalg.solve(cov[1:, 1:] + sb * sb * np.eye(2), d))
-        if m2 <= c.velocity_gate_sigmas ** 2:
-            return False
-        info.rejected.append({"status": STATUS_2PT, "velocity_jump_m": float(np.linalg.norm(d)),
-                              "sigmas": math.sqrt(m2)})
-        return True
+        return float(d @ np.linalg.solve(cov[1:, 1:] + sb * sb * np.eye(2), d))
 
-    def _accept(self, yaw, t, cov, status, n_in, mount_se2, info):
-        """The step of an estimate, or None when its own covariance says it is not determined."""
+    def _accept(self, yaw, t, cov, status, n_in, mount_se2, info, link=None, cov_t=None):
+        """The step of an estimate, or None when its own covariance says it is not determined.
+
+        ``link``: ``(lag, motion, cov, guess_cov)`` when the step is the difference of two
+        motions from a keyframe ``lag`` frames back: ``motion`` (levelled ``(yaw, t)``, with
+        ``cov``) the one into this frame, ``guess_cov`` what guessed steps since the last
+        measurement added; ``cov_t``: then the step's own covariance (:func:`_step_covariance`).
+        ``cov``, the frame-to-frame estimate's, decides whether the step is determined.
+        """
         c = self.config.odometry
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         sd = np.sqrt(np.maximum(np.diag(cov_b), 0.0))
@@ -918,17 +1061,34 @@ class PlanarOdometry:
                 and sd[2] <= math.radians(c.max_sigma_theta_deg)):
             info.rejected.append({"status": status, "sigma_xy_theta": sd.tolist()})
             return None
+        keyframe = None
+        if link is not None:
+            pose, cov_b = lev_motion_to_base_step(yaw, t, cov_t, mount_se2)
         # Floors for what the inlier residuals cannot see: levelling and calibration errors
         # turn the step and push it sideways. Along the motion the depth noise models hold
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds). The 2-point fit sees the levelling error itself.
         f_xy, f_th = ((c.two_point_min_sigma_xy, c.two_point_min_sigma_theta_deg) if status == STATUS_2PT
                       else (c.min_sigma_xy, c.min_sigma_theta_deg))
-        cov_b = 0.5 * (cov_b + cov_b.T) + np.diag([0.0, f_xy ** 2, math.radians(f_th) ** 2])
-        recent = self._remember_translation(t)
-        self._last_motion = (float(yaw), np.mean(recent, axis=0))
-        # the guess averages the window: one step's error enters it divided by its length
-        self._last_t_sigma = math.sqrt(float(np.max(np.diag(cov[1:, 1:]))) + c.min_sigma_xy ** 2) / math.sqrt(len(recent))
+        floors = np.diag([0.0, f_xy ** 2, math.radians(f_th) ** 2])
+        cov_b = 0.5 * (cov_b + cov_b.T) + floors
+        if link is not None:
+            pose_k, cov_k = lev_motion_to_base_step(link[1][0], link[1][1], link[2], mount_se2)
+            keyframe = KeyframeLink(int(link[0]), pose_k, np.linalg.inv(0.5 * (cov_k + cov_k.T) + floors))
+        if link is None:
+            recent = self._remember_translation(t)
+            self._last_motion = (float(yaw), np.mean(recent, axis=0))
+            # the guess averages the window: one step's error enters it divided by its length
+            self._last_t_sigma = (math.sqrt(float(np.max(np.diag(cov[1:, 1:]))) + c.min_sigma_xy ** 2)
+                                  / math.sqrt(len(recent)))
+        else:
+            # the velocity over the window is the difference of two motions from the keyframe
+            # divided by the frames between them: no further averaging (it would lag)
+            v, n = self._keyframes.velocity(link[1], c.velocity_window)
+            self._remember_translation(v)
+            self._last_motion = (float(yaw), v)
+            self._last_t_sigma = math.sqrt(2.0 * float(np.max(np.diag(link[2][1:, 1:]))) + c.min_sigma_xy ** 2) / n
         self._since_t = self._since_yaw = 0
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
-        return Step(pose, np.linalg.inv(cov_b), status, int(n_in)), (float(yaw), np.asarray(t, float), yaw_var)
+        return (Step(pose, np.linalg.inv(cov_b), status, int(n_in), keyframe),
+                (float(yaw), np.asarray(t, float), yaw_var))

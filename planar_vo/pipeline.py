@@ -419,22 +419,24 @@ def motion_report(statuses: Counter) -> dict:
     return rep
 
 
-STEPS_HEADER = "index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers"
+STEPS_HEADER = "index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers,keyframe_lag"
 
 
 def _step_row(result) -> list:
     """One ``steps.csv`` row: the front-end's base_link step ``T_base_prev_base_curr``
-    (x, y m; theta rad) into this frame and the sigmas of its stated covariance."""
+    (x, y m; theta rad) into this frame, the sigmas of its stated covariance, its inliers
+    and how many frames back the keyframe it was measured against is (1: the previous frame)."""
     st = result.step
     with np.errstate(all="ignore"):
         sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(st.information)), 0.0))
-    return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers)]
+    lag = st.keyframe.lag if st.keyframe is not None else 1
+    return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers), lag]
 
 
 def _write_steps(path: Path, rows: list[list]) -> str:
     lines = [STEPS_HEADER]
     for r in rows:
-        lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]}")
+        lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]},{r[10]}")
     write_text_atomic(path, "\n".join(lines) + "\n")
     return str(path)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from planar_vo.core import geometry as g
 from planar_vo.core.steps import STATUS_2PT, STATUS_BRIDGED, STATUS_PARTIAL, FrameDiagnostics
@@ -81,10 +82,14 @@ def test_pure_rotation_without_depth_keeps_its_yaw():
     assert math.degrees(math.sqrt(np.linalg.inv(step.information)[2, 2])) < 0.5
 
 
-def test_a_jumped_track_reference_does_not_enter_the_step():
+@pytest.mark.parametrize("jump_deg", [5.0, 1.0])
+def test_a_jumped_track_reference_does_not_enter_the_step(jump_deg):
     """A track carried over a frame comes back on another surface 5 deg off (a box face in a
     hall): its carried reference says the robot turned 5 deg more than the matches did. The
-    step must not take that jump (it did: -5.2 deg in one step on a tuning hall)."""
+    step must not take that jump (it did: -5.2 deg in one step on a tuning hall). Nor a
+    1 deg one: on the tuning hall of seed 3707, while 2-point steps carried the reference
+    through a turn, eleven direction-plus-point steps took 0.7-1.45 deg jumps at stated
+    sigmas of 0.05-0.16 deg (4.5 deg of heading; a 2 deg threshold let them all through)."""
     from planar_vo.frontend.manhattan import LocalFrame
 
     yaw, t = math.radians(0.8), np.array([0.003, 0.0, 0.035])
@@ -95,7 +100,7 @@ def test_a_jumped_track_reference_does_not_enter_the_step():
     # Headings follow the levelled frame: rotating by +yaw moves a heading by -yaw (eq. 1 sign
     # as yaw_from_manhattan_headings); the carried reference is 5 deg off, the previous view not.
     h2 = h - yaw
-    f = LocalFrame(heading=h2, sigma=sig, score=0.4, track_id=1, prev_heading=h + math.radians(5.0),
+    f = LocalFrame(heading=h2, sigma=sig, score=0.4, track_id=1, prev_heading=h + math.radians(jump_deg),
                    prev_sigma=sig, prev_score=0.4, prev_local=h, age=5, sigma_fit=sig, prev_sigma_fit=sig)
     from planar_vo.frontend.solvers import yaw_from_manhattan_headings
     assert abs(yaw_from_manhattan_headings(h, h2, 0.0) - yaw) < 1e-9   # the frame-to-frame yaw is right
@@ -196,3 +201,23 @@ def test_weaving_on_far_corners_keeps_the_two_point_yaw():
     # measured: 0.00-0.02 deg; a bridge with no turn rate errs by the whole 0.25-0.4 deg
     assert max(abs(e) for e in errors) < 0.05
     assert min(abs(e) for e in bridged_errors) > 0.2
+
+
+def test_a_wide_flat_band_of_corners_is_not_one_line():
+    """Box and pillar corners across an open hall fill a band 900 px wide and 10-25 px rms
+    high (principal spreads 0.04-0.10 apart): their steps were refused as collinear and
+    bridged (86 of 299 steps on a low-texture tuning hall). Corners on one floor-wall
+    junction scatter a pixel off their line: still refused (KLT slides along it)."""
+    from planar_vo.frontend.odometry import _collinear
+    rng = np.random.default_rng(5)
+    f = K.fx
+    u = rng.uniform(-450, 450, 40)
+    band = np.column_stack([u, rng.normal(0, 15, 40)]) / f
+    line = np.column_stack([u, 0.2 * u + rng.normal(0, 1.0, 40)]) / f
+    for pts, want in ((band, False), (line, True)):
+        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
+        assert sv[1] / sv[0] < 0.1                              # both flat by the ratio alone
+        info = FrameDiagnostics()
+        assert _collinear(pts, 0.1, info, 5.0 / f) is want
+        assert bool(info.rejected) is want
+    assert _collinear(band, 0.1, FrameDiagnostics())             # the ratio alone refused the band
