@@ -333,7 +333,14 @@ class OdometryConfig:
                   velocity_window=self.velocity_window, wall_gate_sigmas=self.wall_gate_sigmas,
                   two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m,
                   two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
-                  two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg)
+                  two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg,
+                  keyframe_max_baseline_m=self.keyframe_max_baseline_m, keyframe_max_yaw_deg=self.keyframe_max_yaw_deg,
+                  keyframe_gate_chi2=self.keyframe_gate_chi2)
+        if not 0.0 < self.keyframe_min_fraction <= 1.0:
+            raise ConfigError(f"config key 'odometry.keyframe_min_fraction' must be in (0, 1], "
+                              f"got {self.keyframe_min_fraction!r}")
+        if not self.min_inlier_spread_px >= 0:
+            raise ConfigError(f"config key 'odometry.min_inlier_spread_px' must be >= 0, got {self.min_inlier_spread_px!r}")
         if self.velocity_gate_sigmas < 0:
             raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
         if self.lateral_slip < 0:
