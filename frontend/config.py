@@ -279,6 +279,16 @@ class OdometryConfig:
     keyframe_max_baseline_m: float = 1.0
     keyframe_max_yaw_deg: float = 30.0
     keyframe_gate_chi2: float = 16.27
+    #: A partial step's translation along the direction walls left to the guess (no 3-D
+    #: matches, walls of one direction) is measured by aligning the two frames' depth
+    #: images along it (box sides, door frames, end walls; frontend/depthalign.py), over
+    #: +-4 guess sigmas clipped to [min_range, max_range]. On the tuning seeds 3700-3707
+    #: (docs/bench/depth_align_tuning_3700-3707.txt) the textureless L went 3.08 -> 1.65 %
+    #: smoothed drift (raw 2.36 -> 1.63 %), the estimated logs' p90 / worst 0.60 / 1.92 ->
+    #: 0.59 / 1.92 %, a hall 0.95 -> 1.15 % (raw 0.85 -> 0.80 %).
+    depth_align: bool = True
+    depth_align_min_range_m: float = 0.02
+    depth_align_max_range_m: float = 0.2
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1
@@ -335,7 +345,10 @@ class OdometryConfig:
                   two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
                   two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg,
                   keyframe_max_baseline_m=self.keyframe_max_baseline_m, keyframe_max_yaw_deg=self.keyframe_max_yaw_deg,
-                  keyframe_gate_chi2=self.keyframe_gate_chi2)
+                  keyframe_gate_chi2=self.keyframe_gate_chi2, depth_align_min_range_m=self.depth_align_min_range_m)
+        if not self.depth_align_max_range_m >= self.depth_align_min_range_m:
+            raise ConfigError(f"config key 'odometry.depth_align_max_range_m' must be >= depth_align_min_range_m "
+                              f"({self.depth_align_min_range_m!r}), got {self.depth_align_max_range_m!r}")
         if not 0.0 < self.keyframe_min_fraction <= 1.0:
             raise ConfigError(f"config key 'odometry.keyframe_min_fraction' must be in (0, 1], "
                               f"got {self.keyframe_min_fraction!r}")

@@ -16,7 +16,10 @@ the previous frame is then estimated by
    with depth must agree on the scale); else
 3. a partial step, ``STATUS_PARTIAL``, when a Manhattan frame still gives the yaw: that
    yaw at its own sigma, the translation along the normals of walls seen in both frames,
-   and only the unobserved part of the translation at the bridge's guess and sigma; else
+   from a few agreeing 3-D matches, and along the direction the walls leave open from
+   the two depth images aligned along it (frontend/depthalign.py: box sides, door
+   frames, end walls); only what none of them fixes stays at the bridge's guess and
+   sigma; else
 4. a bridge, ``STATUS_BRIDGED``: constant velocity (or zero motion) with a large
    covariance -- never silently.
 
@@ -36,6 +39,7 @@ import numpy as np
 from planar_vo.core import geometry
 from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
+from planar_vo.frontend.depthalign import DepthAlignOptions, align_along, informative, sample_points
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
@@ -62,6 +66,8 @@ class _Prev:
     frames: list[LocalFrame]
     walls: list[Plane]
     planes: list[Plane] | None = None  # walls and floor
+    depth: np.ndarray | None = None    # (H, W) float32 m, for partial steps' depth alignment
+    R_lev_cam: np.ndarray | None = None
 
 
 def levelled_features(fs: FeatureSet, R_lev_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -341,6 +347,8 @@ class PlanarOdometry:
         self.last_detection: PlaneDetection | None = None
         # frame index -> (features, matches, new corners, seconds) of track() calls made ahead
         self._tracked: dict[int, tuple] = {}
+        self._depth: tuple[np.ndarray, np.ndarray] | None = None  # this frame's (depth, R_lev_cam)
+        self._align_opt = DepthAlignOptions(min_depth=c.min_depth, max_depth=min(c.max_depth, o.wall_max_offset_m))
 
     # ------------------------------------------------------------------ state
     @property
@@ -391,6 +399,7 @@ class PlanarOdometry:
             self._dt = frame.stamp - self._last_stamp
         self._last_stamp = frame.stamp
         planes = list(det.walls) + ([det.floor] if det.floor is not None else [])
+        self._depth = (depth, R)
         step, lev_motion = self._measure(x_lev, P_lev, matches, frames, det.walls, planes, yaw_prior, info)
         t4 = clock()
         timings["estimate"] = t4 - t3
@@ -399,7 +408,7 @@ class PlanarOdometry:
         veto = info.yaw_check if info.yaw_check and info.yaw_check.get("vetoed") else None
         self._manhattan.commit(frames, lev_motion[0], lev_motion[2],
                                distrusted={veto["track_id"]} if veto else frozenset())
-        self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls, planes)
+        self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls, planes, depth, R)
         mount_yaw = geometry.mount_se2(self.mount.T_base_cam)[2]
         observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
                                              f.score, f.track_id)
@@ -822,7 +831,8 @@ class PlanarOdometry:
     def _partial_or_bridge(self, walls1, walls2, mf_yaw, mount_se2, info, pts=None):
         """No estimator gave a whole step. With a Manhattan yaw the step is partial: that yaw
         at its own sigma, and the translation along the normals of walls seen in both
-        frames (``d2 - d1 = n2 . t``); what no wall fixes stays at the bridge's guess
+        frames (``d2 - d1 = n2 . t``), from a few 3-D matches and the depth alignment
+        (:meth:`_partial_translation`); what none fixes stays at the bridge's guess
         (constant velocity or zero) and sigma. Without one, the whole step is bridged."""
         c = self.config.odometry
         if c.bridge == "constant_velocity" and self._last_motion is not None:
@@ -840,12 +850,7 @@ class PlanarOdometry:
         prior, prior_cov = np.array([t[0], t[2]]), sb
         if c.lateral_slip > 0:
             prior, prior_cov = self._wheeled_prior(yaw, prior, sb, mount_se2)
-        walls = wall_constraints(walls1, walls2, yaw, prior, c, prior_cov)
-        t_xz, cov_t = translation_from_walls(walls, prior, prior_cov)
-        points, n_points = self._point_translation(pts, mf_yaw[2], (t_xz, cov_t), info)
-        if points:
-            t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
-        n_walls = len(walls)
+        t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, mf_yaw[2], prior, prior_cov, pts, info)
         t = np.array([t_xz[0], 0.0, t_xz[1]])
         cov = np.zeros((3, 3))
         cov[0, 0] = sigma_yaw ** 2
@@ -853,33 +858,57 @@ class PlanarOdometry:
         # a side wall measures the sideways motion directly, and the guess states its own
         cov[1:, 1:] = cov_t + np.diag([0.0, c.min_sigma_xy ** 2])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
-        info.partial = {"prior": how, "walls": n_walls, "points": n_points}
+        info.partial = {"prior": how, **counts, "measured": counts["walls"] + counts["dense"] >= 2}
         self._kf_guessed = ((float(yaw), np.asarray(t, float)), cov)
         # what of the step's information is the guess (its prior on the translation): the
         # back-end's motion prior states the same constant velocity and takes its place
         Ji = np.linalg.inv(lev_to_base_jacobian(yaw, t, mount_se2))
         guess = np.zeros((3, 3))
         guess[1:, 1:] = np.linalg.inv(_prior_cov(prior_cov))
-        # The turn rate was measured (the frame-to-frame yaw, not the step's, which also
-        # takes back the errors of earlier guesses): the next guess turns at this rate. The
-        # translation guess stays the last measured one, whose error _bridge_sigmas states:
-        # one wall fixes one direction only, and its step's other direction is the guess.
-        # Walls of two directions measure the whole translation: then it is the new guess.
-        # A few 3-D matches measure this step's translation but not well enough for a guess
-        # copied into the steps that follow (4.9 mm rms on 20 mm steps on a tuning hall; the
-        # bridges copying them went 2.7 mm/step astray).
-        measured = how == "zero" or len(walls) >= 2
-        self._last_motion = (float(mf_yaw[2]), np.array(t if measured else self._last_motion[1], dtype=float))
-        if len(walls) >= 2:
+        self._partial_guess(float(mf_yaw[2]), t, cov, how, info.partial["measured"])
+        return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"],
+                     guess_information=Ji.T @ guess @ Ji), (yaw, t, sigma_yaw ** 2))
+
+    def _partial_translation(self, walls1, walls2, yaw: float, yaw_ff: float, prior: np.ndarray, prior_cov, pts,
+                             info) -> tuple[np.ndarray, np.ndarray, dict]:
+        """A partial step's levelled ``(t_x, t_z)`` (2,), its (2, 2) covariance and the
+        constraint counts: walls seen in both frames at the step's ``yaw``, the 1-point
+        translation of a few 3-D matches and the depth alignment at the frame-to-frame
+        ``yaw_ff``, over the guess ``prior`` with ``prior_cov``."""
+        c = self.config.odometry
+        walls = wall_constraints(walls1, walls2, yaw, prior, c, prior_cov)
+        t_xz, cov_t = translation_from_walls(walls, prior, prior_cov)
+        points, n_points = self._point_translation(pts, yaw_ff, (t_xz, cov_t), info)
+        if points:
+            t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
+        # walls of two directions measured the whole translation already; a few 3-D matches
+        # did, but more coarsely (1-4 mm against the alignment's 0.5-1.5 mm on a synthetic
+        # textureless corridor): both are used
+        dense = [] if len(walls) >= 2 else self._dense_translation(yaw_ff, t_xz, cov_t, info)
+        if dense:
+            t_xz, cov_t = translation_from_walls(walls + points + dense, prior, prior_cov)
+        return t_xz, cov_t, {"walls": len(walls), "points": n_points, "dense": len(dense)}
+
+    def _partial_guess(self, yaw_ff: float, t: np.ndarray, cov: np.ndarray, how: str, measured: bool) -> None:
+        """The constant-velocity guess after a partial step of levelled ``t`` (3,), ``cov``
+        (3, 3) over ``(yaw, t_x, t_z)``. The turn rate was measured (the frame-to-frame yaw
+        ``yaw_ff``, not the step's, which also takes back the errors of earlier guesses):
+        the next guess turns at this rate. The translation guess stays the last measured
+        one, whose error _bridge_sigmas states: one wall fixes one direction only, and its
+        step's other direction is the guess. Walls of two directions, or a wall and the
+        depth alignment (``measured``), measure the whole translation: then it is the new
+        guess. A few 3-D matches measure this step's translation but not well enough for a
+        guess copied into the steps that follow (4.9 mm rms on 20 mm steps on a tuning
+        hall; the bridges copying them went 2.7 mm/step astray)."""
+        self._last_motion = (yaw_ff, np.array(t if how == "zero" or measured else self._last_motion[1], dtype=float))
+        if measured:
             self._since_t = 0
             self._last_t_sigma = math.sqrt(float(np.max(np.diag(cov[1:, 1:]))))
         elif how == "zero":
             # the zero guess along the wall was never measured: the guesses copying it keep
             # the bridge's full sigma (a ring started at cruise speed lost 1.9 m over 55
             # such steps stated at 2-26 cm)
-            self._last_t_sigma = c.bridge_sigma_xy
-        return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, n_walls, guess_information=Ji.T @ guess @ Ji),
-                (yaw, t, sigma_yaw ** 2))
+            self._last_t_sigma = self.config.odometry.bridge_sigma_xy
 
     def _bridge(self, yaw: float, t: np.ndarray, sb: float, s_theta: float, how: str, mount_se2, info):
         """A bridged step: the guess ``(yaw, t)`` (levelled) at sigmas ``sb`` (m) and
@@ -949,6 +978,29 @@ class PlanarOdometry:
             return [], 0
         return [(np.array([1.0, 0.0]), float(motion.t[0]), float(cov[1, 1])),
                 (np.array([0.0, 1.0]), float(motion.t[2]), float(cov[2, 2]))], int(est.num_inliers)
+
+    def _dense_translation(self, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, info) -> list:
+        """``[(u (2,), delta, var)]`` (as :func:`wall_constraints`): the translation along the
+        direction ``u`` that walls left to the guess (the larger axis of ``cov_t``), measured by aligning the
+        previous frame's depth with this one's at the frame-to-frame ``yaw``
+        (frontend/depthalign.py), or ``[]``. ``t_xz`` (2,), ``cov_t`` (2, 2): the step's
+        levelled translation so far."""
+        c = self.config.odometry
+        if not c.depth_align or self._prev is None or self._prev.depth is None or self._depth is None:
+            return []
+        lam, vec = np.linalg.eigh(cov_t)
+        sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
+        opt = self._align_opt
+        P1, normals = sample_points(self._prev.depth, self.intrinsics, self._prev.R_lev_cam, opt)
+        P1 = P1[informative(normals, u, opt)]
+        half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
+        depth, R = self._depth
+        a = align_along(P1, depth, self.intrinsics, R, yaw, t_xz, u, half, opt)
+        if a is None:
+            info.partial_dense = {"points": len(P1)}  # tried: no clear minimum
+            return []
+        info.partial_dense = {"s_m": a.s, "sigma_m": math.sqrt(a.var), "points": a.n_points}
+        return [(u, float(u @ t_xz) + a.s, a.var)]
 
     def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
         """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.
