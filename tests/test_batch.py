@@ -166,7 +166,7 @@ def test_batch_local_like_run_then_skips_then_reruns_on_new_config(fleet, ray_he
     cfg.write_text("input:\n  stride: 2\n")
     args = ["batch", str(logs), "--out", str(res), "--config", str(cfg), "--address", ray_head, "--workers", "1", "--quiet"]
     proc = subprocess.Popen([str(PLANAR_VO), *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     first = _wait_for_new_key(res, stamp, proc)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
@@ -180,6 +180,14 @@ def test_batch_local_like_run_then_skips_then_reruns_on_new_config(fleet, ray_he
         n_frames = len(read_tum_trajectory(root / "ref" / name / "raw.tum"))
         assert s["by_name"][name]["frames"] == (n_frames + 1) // 2
         assert "stride: 2" in (res / name / "config.yaml").read_text()
+
+
+def _default_sigint() -> None:
+    """In the child before exec: Ctrl-C's default action. A suite started in the background
+    by a shell without job control (``bash -c 'pytest &'``) runs with SIGINT ignored, the
+    child inherits that and Python then never raises KeyboardInterrupt: the batch ran to its
+    end and this test failed twice so."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _wait_for_new_key(res: Path, old_stamps: dict, proc, timeout_s: float = 300) -> str:
