@@ -279,9 +279,10 @@ class OdometryConfig:
     keyframe_max_baseline_m: float = 1.0
     keyframe_max_yaw_deg: float = 30.0
     keyframe_gate_chi2: float = 16.27
-    #: A partial step's translation along the direction walls left to the guess (no 3-D
-    #: matches, walls of one direction) is measured by aligning the two frames' depth
-    #: images along it (box sides, door frames, end walls; frontend/depthalign.py), over
+    #: A partial step's translation along the direction its walls left to the guess (walls
+    #: of one direction, with or without a few 3-D matches) is measured by aligning the two
+    #: frames' depth images along it (box sides, door frames, end walls;
+    #: frontend/depthalign.py), over
     #: +-4 guess sigmas clipped to [min_range, max_range]. On the tuning seeds 3700-3707
     #: (docs/bench/depth_align_tuning_3700-3707.txt) the textureless L went 3.08 -> 1.65 %
     #: smoothed drift (raw 2.36 -> 1.63 %), the estimated logs' p90 / worst 0.60 / 1.92 ->
@@ -353,7 +354,8 @@ class OdometryConfig:
             raise ConfigError(f"config key 'odometry.keyframe_min_fraction' must be in (0, 1], "
                               f"got {self.keyframe_min_fraction!r}")
         if not self.min_inlier_spread_px >= 0:
-            raise ConfigError(f"config key 'odometry.min_inlier_spread_px' must be >= 0, got {self.min_inlier_spread_px!r}")
+            raise ConfigError(f"config key 'odometry.min_inlier_spread_px' must be >= 0, "
+                              f"got {self.min_inlier_spread_px!r}")
         if self.velocity_gate_sigmas < 0:
             raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
         if self.lateral_slip < 0:

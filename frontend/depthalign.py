@@ -142,11 +142,12 @@ def align_along(P1: np.ndarray, depth2: np.ndarray, K: CameraIntrinsics, R_lev_c
     ``t = t0 + s u`` (``t0`` (2,) levelled x, z). ``|s| <= half_range``.
 
     A coarse grid over the range, then a parabola through a grid of +-``opt.basin_m``
-    around its minimum;
-    the variance is ``2 / curvature`` of the summed truncated cost (its Fisher
-    information), times ``opt.inflate``, plus ``opt.min_sigma_m^2``. None when fewer than
-    ``opt.min_points`` points, the minimum lies on the range's edge, the cost is not
-    convex there or the parabola's vertex leaves the inner half of that grid, or the sigma exceeds ``opt.max_sigma_m``.
+    around its minimum. The variance is ``2 / curvature`` of the summed truncated cost (its
+    Fisher information) times ``opt.inflate``, plus the vertex's variance from the fit and
+    ``opt.min_sigma_m^2``. None when fewer than ``opt.min_points`` points are seen at every
+    ``s``, the minimum lies on the range's edge, the cost is not convex there, the parabola
+    rises less than ``opt.min_contrast`` times its residual RMS, its vertex leaves the inner
+    half of that grid, or the sigma exceeds ``opt.max_sigma_m``.
     """
     opt = opt or DepthAlignOptions()
     if len(P1) < opt.min_points or not half_range > 0:

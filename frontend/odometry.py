@@ -348,7 +348,10 @@ class PlanarOdometry:
         # frame index -> (features, matches, new corners, seconds) of track() calls made ahead
         self._tracked: dict[int, tuple] = {}
         self._depth: tuple[np.ndarray, np.ndarray] | None = None  # this frame's (depth, R_lev_cam)
-        self._align_opt = DepthAlignOptions(min_depth=c.min_depth, max_depth=min(c.max_depth, o.wall_max_offset_m))
+        # the depth noise model of the 1-point translation (DirPointOptions), not a second one
+        self._align_opt = DepthAlignOptions(min_depth=c.min_depth, max_depth=min(c.max_depth, o.wall_max_offset_m),
+                                            sigma_const=self._dpp_opt.depth_sigma_const,
+                                            sigma_quad=self._dpp_opt.depth_sigma_quad)
 
     # ------------------------------------------------------------------ state
     @property
@@ -882,8 +885,8 @@ class PlanarOdometry:
         if points:
             t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
         # walls of two directions measured the whole translation already; a few 3-D matches
-        # did, but more coarsely (1-4 mm against the alignment's 0.5-1.5 mm on a synthetic
-        # textureless corridor): both are used
+        # did, but more coarsely (on the boxed textureless corridor of tests/test_depthalign.py,
+        # before the contrast test: up to 5.1 mm against the alignment's 2.1 mm): both are used
         dense = [] if len(walls) >= 2 else self._dense_translation(yaw_ff, t_xz, cov_t, info)
         if dense:
             t_xz, cov_t = translation_from_walls(walls + points + dense, prior, prior_cov)
@@ -981,8 +984,8 @@ class PlanarOdometry:
 
     def _dense_translation(self, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, info) -> list:
         """``[(u (2,), delta, var)]`` (as :func:`wall_constraints`): the translation along the
-        direction ``u`` that walls left to the guess (the larger axis of ``cov_t``), measured by aligning the
-        previous frame's depth with this one's at the frame-to-frame ``yaw``
+        direction ``u`` the walls left to the guess (the larger axis of ``cov_t``), measured
+        by aligning the previous frame's depth with this one's at the frame-to-frame ``yaw``
         (frontend/depthalign.py), or ``[]``. ``t_xz`` (2,), ``cov_t`` (2, 2): the step's
         levelled translation so far."""
         c = self.config.odometry
