@@ -329,15 +329,18 @@ class OdometryConfig:
     #: forward errors were 0.64 of their sigma with it, 0.86 without, tuning seeds).
     min_sigma_xy: float = 0.001
     min_sigma_theta_deg: float = 0.02
-    #: The same floors for 2-point steps. Their refinement fits the levelling error itself
-    #: (the tilted model of Sec. 2.2), so their residuals see what the floors above stand
-    #: for: over the 5032 2-point steps of tuning seeds 3500-3607 (nearly all on halls) the
-    #: floors above made their stated sideways and yaw sigmas ~3x their errors (normalised
-    #: RMS 0.30 / 0.37); at these
-    #: values 0.63 / 0.65 (forward, not floored: 1.24). The graph floors every step again
+    #: Floors for 2-point steps, in every direction of the translation (its covariance is
+    #: a thin valley, direction from the images, length from the depths, whose width the
+    #: inlier residuals understate): ``two_point_min_sigma_xy`` plus an image error of
+    #: ``two_point_shared_px`` pixels that all matches share, at their typical depth Z
+    #: (``shared_px * Z / fx`` metres). Across the valley the tuning halls' (seeds
+    #: 3700-3707) errors stayed at 0.3 mm at Z < 1.5 m and 1.2 mm at Z ~ 3.5 m whatever
+    #: the stated sigma (0.4-0.7 mm). The yaw floor lies along the yaw-sideways coupling
+    #: (``PlanarOdometry._yaw_floor``). The graph floors every step again
     #: (backend.step_min_sigma_xy), for errors shared by many steps that no step's sigma states.
     two_point_min_sigma_xy: float = 0.0002
-    two_point_min_sigma_theta_deg: float = 0.005
+    two_point_shared_px: float = 0.2
+    two_point_min_sigma_theta_deg: float = 0.02
 
     def __post_init__(self) -> None:
         _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
@@ -345,6 +348,7 @@ class OdometryConfig:
                   two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m,
                   two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
                   two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg,
+                  two_point_shared_px=self.two_point_shared_px,
                   keyframe_max_baseline_m=self.keyframe_max_baseline_m, keyframe_max_yaw_deg=self.keyframe_max_yaw_deg,
                   keyframe_gate_chi2=self.keyframe_gate_chi2, depth_align_min_range_m=self.depth_align_min_range_m)
         if not self.depth_align_max_range_m >= self.depth_align_min_range_m:

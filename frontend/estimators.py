@@ -756,6 +756,38 @@ def _with_lateral_prior(fun, m_base_lev: np.ndarray, sigma: float):
     return g
 
 
+def _metric_covariance(J: np.ndarray, e: np.ndarray, n_depth: int, n_prior: int, p: np.ndarray) -> np.ndarray:
+    """Covariance (3, 3) of the metric 2-point fit ``p`` from its Jacobian ``J`` and
+    whitened residuals ``e``: image rows, then ``2 n_depth`` depth rows, then ``n_prior``."""
+    n_img = len(e) - 2 * n_depth - n_prior
+    return _blocked_covariance(_image_rows_at_scale(J, n_img, n_depth, p), e, n_img, 3, n_prior)
+
+
+def _image_rows_at_scale(J: np.ndarray, n_img: int, n_depth: int, p: np.ndarray) -> np.ndarray:
+    """``J`` (rows, 3) with its first ``n_img`` (Sampson) rows' translation columns taken
+    at the length the depths allow, ``|t| + sigma_r``, not at the estimate's ``|t|``.
+
+    The Sampson rows are scale-free: they see the direction of ``t``, and in metres their
+    derivative is that direction's divided by ``|t|``. Where the images barely see the
+    translation the fit can end near ``t = 0`` in any direction, and the covariance then
+    claimed the direction to a fraction of a millimetre in metres; with the wheeled base's
+    sideways prior it pinned the length too (a tuning hall's 11 mm steps measured as 1 mm
+    at a stated 0.5 mm forward sigma). ``sigma_r``: the length's sigma from the ``n_depth``
+    points' depth rows (the ``2 n_depth`` rows after the image rows) alone."""
+    tn = math.hypot(p[1], p[2])
+    if n_img == 0 or n_depth == 0 or tn <= 0:
+        return J
+    Jd = J[n_img:n_img + 2 * n_depth, 1:]
+    d = np.array([p[1], p[2]]) / tn
+    try:
+        sigma_r = math.sqrt(max(float(d @ np.linalg.solve(Jd.T @ Jd, d)), 0.0))
+    except np.linalg.LinAlgError:
+        return J
+    J = J.copy()
+    J[:n_img, 1:] *= tn / (tn + sigma_r)
+    return J
+
+
 def _blocked_covariance(J: np.ndarray, e: np.ndarray, n_img: int, dof_params: int, n_prior: int = 0) -> np.ndarray:
     """``(sum_b J_b^T J_b / f_b)^-1`` over the image rows (the first ``n_img``; none when
     the fit has no Sampson terms) and the depth rows, whitened residuals ``e``. The image
@@ -839,8 +871,7 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
     info.refine_iterations += its
     info.cost = cost
-    e_fit = fun(p, False)[0]
-    info.covariance = _blocked_covariance(J, e_fit, len(e_fit) - 2 * len(Q1) - n_prior, 3, n_prior)
+    info.covariance = _metric_covariance(J, fun(p, False)[0], len(Q1), n_prior, p)
     info.scale_inliers = scale_inl
     motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
                           pure_rotation=info.status == PURE_ROTATION)

@@ -219,6 +219,19 @@ def inflate_crowded_yaw(cov: np.ndarray, cells: int, min_cells: float, depth: fl
     return cov + (k * k - 1.0) * cov[0, 0] * np.outer(v, v)
 
 
+def _typical_depth(P: np.ndarray) -> float:
+    """Median depth (m) of the (N, 3) levelled points with a valid one, NaN without any."""
+    z = np.asarray(P)[:, 2] if len(P) else np.zeros(0)
+    z = z[np.isfinite(z) & (z > 0)]
+    return float(np.median(z)) if len(z) else math.nan
+
+
+def _base_cov(yaw: float, t, cov_lev: np.ndarray, mount_se2) -> np.ndarray:
+    """A levelled (3, 3) covariance over ``(yaw, t_x, t_z)`` in base_link (x, y, theta)."""
+    J = lev_to_base_jacobian(yaw, np.asarray(t, dtype=float), mount_se2)
+    return J @ cov_lev @ J.T
+
+
 def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool) -> np.ndarray:
     """(3, 3) covariance over ``(yaw, t_x, t_z)`` of a step taken as the difference of two
     motions from a keyframe: their errors share the keyframe's part, so the step errs by
@@ -549,7 +562,8 @@ class PlanarOdometry:
                 cov_t = _step_covariance(kf[1] + link[3], e.covariance, kf[2])
             if status == STATUS_2PT and self._velocity_jump(t, cov_t, info):
                 continue
-            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t)
+            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t,
+                                depth=_typical_depth(P1))
             if step is not None:
                 if status == STATUS_DPP:
                     self._dpp_track = est[2]
@@ -1061,6 +1075,20 @@ class PlanarOdometry:
         self._history = (self._history + [(self._n, np.asarray(t, dtype=float).copy())])[-w:]
         return [e[1] for e in self._history if self._n - e[0] < w]
 
+    def _yaw_floor(self, status: str, depth: float) -> np.ndarray:
+        """(3, 3) levelled covariance over ``(yaw, t_x, t_z)`` of the yaw error no residual
+        shows (levelling, calibration, errors the matches share): a floor on the yaw's sigma
+        (``two_point_min_sigma_theta_deg`` / ``min_sigma_theta_deg``) along ``(1, -Z, 0)``,
+        ``Z`` the matches' typical ``depth``. A translation measured at a wrong yaw moves
+        sideways by ``-Z`` times the yaw error (``X2 = R X1 + t``): on the tuning seeds the
+        sideways and yaw errors of 2-point and direction-plus-point steps correlate by -0.78
+        and -0.82 (slope -2.9 and -1.8 m). Stated uncorrelated, a graph that corrects the
+        yaw by the Manhattan frame keeps the sideways error (mechanism 1 of issue 9)."""
+        c = self.config.odometry
+        f = math.radians(c.two_point_min_sigma_theta_deg if status == STATUS_2PT else c.min_sigma_theta_deg)
+        v = np.array([1.0, -depth if math.isfinite(depth) else 0.0, 0.0])
+        return f * f * np.outer(v, v)
+
     def _velocity_jump(self, t: np.ndarray, cov: np.ndarray, info) -> bool:
         """True when a 2-point translation ``t`` (3,), levelled, with ``cov`` (3, 3) over
         (yaw, t_x, t_z), departs from the constant-velocity guess by more than
@@ -1100,7 +1128,7 @@ class PlanarOdometry:
         d = np.array([t[0] - self._last_motion[1][0], t[2] - self._last_motion[1][2]])
         return float(d @ np.linalg.solve(cov[1:, 1:] + sb * sb * np.eye(2), d))
 
-    def _accept(self, yaw, t, cov, status, n_in, mount_se2, info, link=None, cov_t=None):
+    def _accept(self, yaw, t, cov, status, n_in, mount_se2, info, link=None, cov_t=None, depth=math.nan):
         """The step of an estimate, or None when its own covariance says it is not determined.
 
         ``link``: ``(lag, motion, cov, guess_cov)`` when the step is the difference of two
@@ -1108,6 +1136,7 @@ class PlanarOdometry:
         ``cov``) the one into this frame, ``guess_cov`` what guessed steps since the last
         measurement added; ``cov_t``: then the step's own covariance (:func:`_step_covariance`).
         ``cov``, the frame-to-frame estimate's, decides whether the step is determined.
+        ``depth`` (m): the matches' typical depth (:func:`_typical_depth`), for the floors.
         """
         c = self.config.odometry
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
@@ -1119,16 +1148,26 @@ class PlanarOdometry:
         keyframe = None
         if link is not None:
             pose, cov_b = lev_motion_to_base_step(yaw, t, cov_t, mount_se2)
+        floor_lev = self._yaw_floor(status, depth)
+        cov_b = cov_b + _base_cov(yaw, t, floor_lev, mount_se2)
         # Floors for what the inlier residuals cannot see: levelling and calibration errors
         # turn the step and push it sideways. Along the motion the depth noise models hold
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds). The 2-point fit sees the levelling error itself.
-        f_xy, f_th = ((c.two_point_min_sigma_xy, c.two_point_min_sigma_theta_deg) if status == STATUS_2PT
-                      else (c.min_sigma_xy, c.min_sigma_theta_deg))
-        floors = np.diag([0.0, f_xy ** 2, math.radians(f_th) ** 2])
+        if status == STATUS_2PT:
+            # A 2-point translation's direction comes from the images, its length from the
+            # depths: a thin valley along the motion. Across it the stated sigma (0.4-0.7
+            # mm where the parallax is small) understated errors the matches share, which
+            # grow with their depth. Floored sideways only, an oblique valley kept its
+            # width, and a motion prior slid the step along it (a tuning hall's 12 mm
+            # steps to 1 mm). So the floor is in both directions.
+            shared = c.two_point_shared_px * depth / self.intrinsics.fx if math.isfinite(depth) else 0.0
+            floors = np.diag([c.two_point_min_sigma_xy ** 2 + shared ** 2] * 2 + [0.0])
+        else:
+            floors = np.diag([0.0, c.min_sigma_xy ** 2, 0.0])
         cov_b = 0.5 * (cov_b + cov_b.T) + floors
         if link is not None:
-            pose_k, cov_k = lev_motion_to_base_step(link[1][0], link[1][1], link[2], mount_se2)
+            pose_k, cov_k = lev_motion_to_base_step(link[1][0], link[1][1], link[2] + floor_lev, mount_se2)
             keyframe = KeyframeLink(int(link[0]), pose_k, np.linalg.inv(0.5 * (cov_k + cov_k.T) + floors))
         if link is None:
             recent = self._remember_translation(t)

@@ -438,3 +438,33 @@ def test_base_lateral_is_the_chord_residual_of_the_base_step():
     from planar_vo.core.geometry import base_step_to_lev_step, pose_to_levelled_motion
     y_lev, t_lev = pose_to_levelled_motion(base_step_to_lev_step(base_step, m))
     assert _base_lateral(np.array([y_lev, t_lev[0], t_lev[2]]), m) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_metric_two_point_covariance_is_taken_at_the_length_the_depths_allow():
+    """The Sampson rows see only the direction of ``t``: in metres their derivative is
+    the direction's divided by ``|t|``. A fit that ends near ``t = 0`` (the images barely
+    see an 11 mm step through corners 3-6 m away) must not claim its translation tighter
+    than one that ends at the true length: a tuning hall's 11 mm steps were measured as 1 mm
+    at a stated 0.5 mm forward sigma. Here, with the same matches, the fit's translation
+    sigmas at 1 mm stay within 2.5x of those at the true 11 mm (0.49x at the least; taken at
+    the estimate's length, 0.09x)."""
+    from planar_vo.frontend.estimators import _Matches, _metric_covariance, _metric_residuals
+    rng = np.random.default_rng(3)
+    n, k = 120, 20
+    X1 = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(-1, 0.7, n), rng.uniform(3.0, 6.0, n)])
+    yaw, t = math.radians(0.5), np.array([0.0, 0.0, 0.011])
+    c, s = math.cos(yaw), math.sin(yaw)
+    X2 = X1 @ np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]).T + t
+    x1 = X1[:, :2] / X1[:, 2:] + rng.normal(0.0, 0.5 / 540.0, (n, 2))
+    x2 = X2[:, :2] / X2[:, 2:] + rng.normal(0.0, 0.5 / 540.0, (n, 2))
+    inv_sig = 1.0 / (0.002 + 0.002 * X1[:k, 2] ** 2)
+    m, w_img = _Matches(x1, x2), 540.0 / 0.5
+
+    def sigmas(p):
+        e, J = _metric_residuals(m, w_img, X1[:k], X2[:k], inv_sig, p, True)
+        return np.sqrt(np.diag(_metric_covariance(J, e, k, 0, p))[1:])
+
+    at_truth = sigmas(np.array([yaw, 0.0, 0.011]))
+    for direction in (0.0, 0.9, -0.6):  # rad off the forward axis
+        near_zero = sigmas(np.array([yaw, 0.001 * math.sin(direction), 0.001 * math.cos(direction)]))
+        assert np.all(near_zero >= 0.4 * at_truth), (near_zero, at_truth)
