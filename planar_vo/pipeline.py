@@ -419,24 +419,30 @@ def motion_report(statuses: Counter) -> dict:
     return rep
 
 
-STEPS_HEADER = "index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers,keyframe_lag"
+STEPS_HEADER = ("index,stamp,status,x,y,theta,sigma_x,sigma_y,sigma_theta,inliers,keyframe_lag,"
+                "rho_xy,rho_xtheta,rho_ytheta")
 
 
 def _step_row(result) -> list:
     """One ``steps.csv`` row: the front-end's base_link step ``T_base_prev_base_curr``
-    (x, y m; theta rad) into this frame, the sigmas of its stated covariance, its inliers
-    and how many frames back the keyframe it was measured against is (1: the previous frame)."""
+    (x, y m; theta rad) into this frame, the sigmas of its stated covariance, its inliers,
+    how many frames back the keyframe it was measured against is (1: the previous frame),
+    and the covariance's correlation coefficients (x-y, x-theta, y-theta): with the sigmas
+    they give the whole (3, 3) covariance back."""
     st = result.step
     with np.errstate(all="ignore"):
-        sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(st.information)), 0.0))
+        cov = np.linalg.inv(st.information)
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        rho = [float(cov[i, j] / (sd[i] * sd[j])) if sd[i] * sd[j] > 0 else 0.0 for i, j in ((0, 1), (0, 2), (1, 2))]
     lag = st.keyframe.lag if st.keyframe is not None else 1
-    return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers), lag]
+    return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers), lag, *rho]
 
 
 def _write_steps(path: Path, rows: list[list]) -> str:
     lines = [STEPS_HEADER]
     for r in rows:
-        lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]},{r[10]}")
+        lines.append(f"{r[0]},{r[1]:.6f},{r[2]}," + ",".join(f"{v:.9g}" for v in r[3:9]) + f",{r[9]},{r[10]},"
+                     + ",".join(f"{v:.6f}" for v in r[11:14]))
     write_text_atomic(path, "\n".join(lines) + "\n")
     return str(path)
 

@@ -121,4 +121,16 @@ def test_step_errors_against_ground_truth(tmp_path):
     # row 1 starts at a frame not in the file: only row 2 is scored
     assert out["dpp"]["n"] == 1
     assert out["dpp"]["sum_sq"] == pytest.approx([0.0, 4.0, 1.0], abs=1e-6)
+    assert out["dpp"]["nees_sum"] == pytest.approx(5.0, abs=1e-6)  # no correlation columns
     assert se2_compose(base[0], se2_between(base[0], base[1])) == pytest.approx(base[1])
+    # with the correlation columns: the error (0, -2, +1) sigma goes against a stated y-theta
+    # correlation of +0.8, so it is far less likely than per axis (4 + 1 = 5) says
+    rows = [rows[0] + ",keyframe_lag,rho_xy,rho_xtheta,rho_ytheta"] + [r + ",1,0,0,0.8" for r in rows[1:]]
+    (tmp_path / "steps.csv").write_text("\n".join(rows) + "\n")
+    out = step_errors(tmp_path / "steps.csv", gt, T_bc)
+    z = np.array([-2.0, 1.0])
+    C = np.array([[1.0, 0.8], [0.8, 1.0]])
+    assert out["dpp"]["nees_sum"] == pytest.approx(float(z @ np.linalg.solve(C, z)), rel=1e-6)
+    assert out["dpp"]["nees_sum"] > 5.0 * 1.5
+    pooled = pool_normalised([{"normalised": out}, {"normalised": out}])
+    assert pooled["dpp"]["n"] == 2 and pooled["dpp"]["nees"] == pytest.approx(out["dpp"]["nees_sum"])

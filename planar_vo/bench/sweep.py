@@ -130,8 +130,12 @@ def _count(frames: dict, status: str) -> int:
 
 
 def step_errors(steps_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
-    """Per status: ``{"n", "sum_sq": [x, y, theta]}`` of the steps' errors against the
-    ground truth divided by their stated sigmas (summed squares, so logs pool exactly)."""
+    """Per status: ``{"n", "sum_sq": [x, y, theta], "nees_sum"}`` of the steps' errors
+    against the ground truth divided by their stated sigmas (summed squares, so logs pool
+    exactly), and the sum of the normalised squared errors ``e^T C^-1 e`` over the whole
+    stated covariance ``C`` (3 per step on average when it is honest; per axis the sigmas
+    can look right while the correlations are wrong). Files without the correlation
+    columns (``rho_*``) are scored as uncorrelated."""
     from planar_vo.core.geometry import se2_between, wrap_angle
 
     rows = list(csv.DictReader(open(steps_csv)))
@@ -152,9 +156,13 @@ def step_errors(steps_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
         e = np.array([float(r["x"]), float(r["y"]), float(r["theta"])]) - g
         e[2] = float(wrap_angle(e[2]))
         s = np.array([float(r["sigma_x"]), float(r["sigma_y"]), float(r["sigma_theta"])])
-        d = out.setdefault(r["status"], {"n": 0, "sum_sq": [0.0, 0.0, 0.0]})
+        rho = [float(r.get(k) or 0.0) for k in ("rho_xy", "rho_xtheta", "rho_ytheta")]
+        corr = np.array([[1.0, rho[0], rho[1]], [rho[0], 1.0, rho[2]], [rho[1], rho[2], 1.0]])
+        z = e / s
+        d = out.setdefault(r["status"], {"n": 0, "sum_sq": [0.0, 0.0, 0.0], "nees_sum": 0.0})
         d["n"] += 1
-        d["sum_sq"] = [a + float(b) for a, b in zip(d["sum_sq"], (e / s) ** 2)]
+        d["sum_sq"] = [a + float(b) for a, b in zip(d["sum_sq"], z ** 2)]
+        d["nees_sum"] += float(z @ np.linalg.lstsq(corr, z, rcond=None)[0])
     return out
 
 
@@ -169,14 +177,17 @@ def spread(values) -> dict:
 
 
 def pool_normalised(records: list[dict]) -> dict:
-    """Normalised RMS per status and component pooled over logs: ``{status: {"n", "rms": [x, y, th]}}``."""
+    """Normalised RMS per status and component and the mean normalised squared error over
+    the whole covariance, pooled over logs: ``{status: {"n", "rms": [x, y, th], "nees"}}``."""
     acc: dict = {}
     for r in records:
         for status, d in (r.get("normalised") or {}).items():
-            a = acc.setdefault(status, {"n": 0, "sum_sq": np.zeros(3)})
+            a = acc.setdefault(status, {"n": 0, "sum_sq": np.zeros(3), "nees_sum": 0.0})
             a["n"] += d["n"]
             a["sum_sq"] += np.asarray(d["sum_sq"])
-    return {s: {"n": a["n"], "rms": (np.sqrt(a["sum_sq"] / a["n"]).tolist() if a["n"] else [float("nan")] * 3)}
+            a["nees_sum"] += float(d.get("nees_sum", np.sum(d["sum_sq"])))
+    return {s: {"n": a["n"], "rms": (np.sqrt(a["sum_sq"] / a["n"]).tolist() if a["n"] else [float("nan")] * 3),
+                "nees": a["nees_sum"] / a["n"] if a["n"] else float("nan")}
             for s, a in acc.items()}
 
 
@@ -219,11 +230,12 @@ def format_summary(summary: dict) -> str:
         cells = "  ".join(f"{g[k]['median']:>8.2f} /{g[k]['p90']:>7.2f} /{g[k]['worst']:>7.2f}" for k, _, _ in METRICS)
         lines.append(f"{name:<11}{g['logs']:>5}{g['frames']:>8}  {cells}")
     lines.append("")
-    lines.append(f"{'layout':<11}" + "".join(f"{s:>10}" for s in STATUSES) + "   normalised step error RMS x / y / theta (n)")
+    lines.append(f"{'layout':<11}" + "".join(f"{s:>10}" for s in STATUSES)
+                 + "   normalised step error RMS x / y / theta, mean e^T C^-1 e (3 if honest) (n)")
     for name, g in summary.items():
         if name == "failed":
             continue
-        norm = "  ".join(f"{s} {v['rms'][0]:.2f}/{v['rms'][1]:.2f}/{v['rms'][2]:.2f} ({v['n']})"
+        norm = "  ".join(f"{s} {v['rms'][0]:.2f}/{v['rms'][1]:.2f}/{v['rms'][2]:.2f}, {v['nees']:.1f} ({v['n']})"
                          for s, v in sorted(g["normalised"].items()))
         lines.append(f"{name:<11}" + "".join(f"{g['steps'][s]:>10}" for s in STATUSES) + "   " + norm)
     for f in summary.get("failed", []):
@@ -239,12 +251,13 @@ def format_markdown(summary: dict, records: list[dict], command: str) -> str:
             continue
         out.append(f"| {name} | {g['logs']} | " + " | ".join(
             f"{g[k]['median']:.2f} / {g[k]['p90']:.2f} / {g[k]['worst']:.2f}" for k, _, _ in METRICS) + " |")
-    out += ["", "| layout | " + " | ".join(STATUSES) + " | normalised RMS x / y / theta (steps) |",
+    out += ["", "| layout | " + " | ".join(STATUSES)
+            + " | normalised RMS x / y / theta, mean e^T C^-1 e (3 if honest) (steps) |",
             "|" + " --- |" * (2 + len(STATUSES))]
     for name, g in summary.items():
         if name == "failed":
             continue
-        norm = "; ".join(f"{s} {v['rms'][0]:.2f} / {v['rms'][1]:.2f} / {v['rms'][2]:.2f} ({v['n']})"
+        norm = "; ".join(f"{s} {v['rms'][0]:.2f} / {v['rms'][1]:.2f} / {v['rms'][2]:.2f}, {v['nees']:.1f} ({v['n']})"
                          for s, v in sorted(g["normalised"].items()))
         out.append(f"| {name} | " + " | ".join(str(g["steps"][s]) for s in STATUSES) + f" | {norm} |")
     out += ["", "| log | frames | path m | texture | raw drift % | raw yaw | smoothed drift % | smoothed yaw | frames M |",
