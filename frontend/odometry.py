@@ -1153,7 +1153,7 @@ class PlanarOdometry:
         # Floors for what the inlier residuals cannot see: levelling and calibration errors
         # turn the step and push it sideways. Along the motion the depth noise models hold
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
-        # with one, on the tuning seeds). The 2-point fit sees the levelling error itself.
+        # with one, on the tuning seeds).
         if status == STATUS_2PT:
             # A 2-point translation's direction comes from the images, its length from the
             # depths: a thin valley along the motion. Across it the stated sigma (0.4-0.7
