@@ -333,9 +333,10 @@ class OdometryConfig:
     #: a thin valley, direction from the images, length from the depths, whose width the
     #: inlier residuals understate): ``two_point_min_sigma_xy`` plus an image error of
     #: ``two_point_shared_px`` pixels that all matches share, at their typical depth Z
-    #: (``shared_px * Z / fx`` metres). Across the valley the tuning halls' (seeds
-    #: 3700-3707) errors stayed at 0.3 mm at Z < 1.5 m and 1.2 mm at Z ~ 3.5 m whatever
-    #: the stated sigma (0.4-0.7 mm). The yaw floor lies along the yaw-sideways coupling
+    #: (``shared_px * Z / fx`` metres). Across the valley the tuning seeds' (3700-3707,
+    #: mostly halls) errors stayed near 1.2 mm where the stated sigma was 0.4-0.7 mm, and
+    #: grew with Z (0.3 mm under 1.5 m, 0.8 mm at 1.5-2.5 m on three tuning halls). The
+    #: yaw floor lies along the yaw-sideways coupling
     #: (``PlanarOdometry._yaw_floor``). The graph floors every step again
     #: (backend.step_min_sigma_xy), for errors shared by many steps that no step's sigma states.
     two_point_min_sigma_xy: float = 0.0002

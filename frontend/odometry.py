@@ -226,12 +226,6 @@ def _typical_depth(P: np.ndarray) -> float:
     return float(np.median(z)) if len(z) else math.nan
 
 
-def _base_cov(yaw: float, t, cov_lev: np.ndarray, mount_se2) -> np.ndarray:
-    """A levelled (3, 3) covariance over ``(yaw, t_x, t_z)`` in base_link (x, y, theta)."""
-    J = lev_to_base_jacobian(yaw, np.asarray(t, dtype=float), mount_se2)
-    return J @ cov_lev @ J.T
-
-
 def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool) -> np.ndarray:
     """(3, 3) covariance over ``(yaw, t_x, t_z)`` of a step taken as the difference of two
     motions from a keyframe: their errors share the keyframe's part, so the step errs by
@@ -547,6 +541,7 @@ class PlanarOdometry:
         if weak is not None and mf_yaw is None:
             # no wall gives the yaw, the 2-point method does: a partial step at its yaw
             mf_yaw = weak
+        depth = _typical_depth(P1)
         for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
             if est is None:
                 continue
@@ -562,8 +557,7 @@ class PlanarOdometry:
                 cov_t = _step_covariance(kf[1] + link[3], e.covariance, kf[2])
             if status == STATUS_2PT and self._velocity_jump(t, cov_t, info):
                 continue
-            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t,
-                                depth=_typical_depth(P1))
+            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t, depth)
             if step is not None:
                 if status == STATUS_DPP:
                     self._dpp_track = est[2]
@@ -1146,18 +1140,16 @@ class PlanarOdometry:
             info.rejected.append({"status": status, "sigma_xy_theta": sd.tolist()})
             return None
         keyframe = None
-        if link is not None:
-            pose, cov_b = lev_motion_to_base_step(yaw, t, cov_t, mount_se2)
         floor_lev = self._yaw_floor(status, depth)
-        cov_b = cov_b + _base_cov(yaw, t, floor_lev, mount_se2)
+        pose, cov_b = lev_motion_to_base_step(yaw, t, (cov if link is None else cov_t) + floor_lev, mount_se2)
         # Floors for what the inlier residuals cannot see: levelling and calibration errors
         # turn the step and push it sideways. Along the motion the depth noise models hold
         # (direction-plus-point forward errors 0.86 of their sigma without a floor, 0.64
         # with one, on the tuning seeds).
         if status == STATUS_2PT:
             # A 2-point translation's direction comes from the images, its length from the
-            # depths: a thin valley along the motion. Across it the stated sigma (0.4-0.7
-            # mm where the parallax is small) understated errors the matches share, which
+            # depths: a thin valley along the motion. Across it a stated sigma of 0.4-0.7 mm
+            # came with errors near 1.2 mm (tuning seeds): errors the matches share, which
             # grow with their depth. Floored sideways only, an oblique valley kept its
             # width, and a motion prior slid the step along it (a tuning hall's 12 mm
             # steps to 1 mm). So the floor is in both directions.
