@@ -279,6 +279,19 @@ class OdometryConfig:
     keyframe_max_baseline_m: float = 1.0
     keyframe_max_yaw_deg: float = 30.0
     keyframe_gate_chi2: float = 16.27
+    #: Image error (pixels) a tracked corner gains per frame since the keyframe, as a random
+    #: walk (sigma ``keyframe_track_px * sqrt(age)``, added in variance to the 2-point
+    #: pixel sigma of a motion from the keyframe): KLT finds each corner again in every
+    #: frame, each time a little off. Without it the 2-point motions from a keyframe stated
+    #: too little, the more the older the keyframe: on the nine halls of tuning seeds
+    #: 3700-3707 their mean ``e^T C^-1 e`` (3 if honest) was 3.2 at 2-4 frames, 5.2 at 5-9,
+    #: 8.9 at 10-14 (a motion 22 frames long erred -1.04 deg in yaw at a stated 0.11 deg).
+    #: Measured KLT drift on renders is 0.13-0.2 px a frame (tests/test_keyframe.py); 0.5,
+    #: chosen on those tuning seeds over 0.3 (smoothed drift median / p90 / worst of the 38
+    #: estimated logs 0.16 / 0.48 / 1.43 -> 0.13 / 0.34 / 1.26 %, docs/bench/
+    #: sweep_tuning_3700-3707_session18*.txt; 0.3: worst 1.60), also covers errors that grow
+    #: with the motion's length and are not modelled yet. 0: off.
+    keyframe_track_px: float = 0.5
     #: A partial step's translation along the direction its walls left to the guess (walls
     #: of one direction, with or without a few 3-D matches) is measured by aligning the two
     #: frames' depth images along it (box sides, door frames, end walls;
@@ -365,6 +378,9 @@ class OdometryConfig:
             raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
         if self.lateral_slip < 0:
             raise ConfigError("config key 'odometry.lateral_slip' must be >= 0 (0 turns the prior off)")
+        if not self.keyframe_track_px >= 0:
+            raise ConfigError(f"config key 'odometry.keyframe_track_px' must be >= 0 (0 turns it off), "
+                              f"got {self.keyframe_track_px!r}")
         if self.depth_incidence < 0:
             raise ConfigError("config key 'odometry.depth_incidence' must be >= 0")
 

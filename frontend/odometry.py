@@ -599,7 +599,8 @@ class PlanarOdometry:
         else:
             if len(x1) < 2:
                 return None
-            motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._two_point_options(mount_se2))
+            motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._keyframe_two_point_options(
+                mount_se2, kf.age))
             ok = (motion is not None and est.covariance is not None and est.num_inliers >= c.min_inliers
                   and est.num_inliers >= c.min_inlier_ratio * len(x1)
                   and int(est.scale_inliers.sum()) >= c.weak_scale_inliers)
@@ -613,6 +614,17 @@ class PlanarOdometry:
             info.rejected.append({"status": status, "keyframe_sigmas": math.sqrt(m2), "keyframe_age": kf.age})
             return None
         return (float(motion.yaw), np.asarray(motion.t, float)), est.covariance, chained
+
+    def _keyframe_two_point_options(self, mount_se2, age: int):
+        """The 2-point options for a motion from a keyframe ``age`` frames back: a corner
+        tracked frame by frame (KLT) wanders from where it was first seen by a random walk,
+        so its image error grows as ``keyframe_track_px * sqrt(age)`` on top of the
+        per-frame ``pixel_sigma`` (added in variance)."""
+        opt = self._two_point_options(mount_se2)
+        walk = self.config.odometry.keyframe_track_px
+        if walk <= 0 or age <= 0:
+            return opt
+        return replace(opt, pixel_sigma=math.sqrt(opt.pixel_sigma ** 2 + age * walk ** 2))
 
     def _matched(self, prev: _Prev, x_lev, P_lev, matches, info):
         """Matched levelled coordinates and points ``(x1, x2, P1, P2, depth_ok)``; runs the
