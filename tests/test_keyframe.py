@@ -157,7 +157,8 @@ def _keyframe_nees(config: OdometryConfig, seeds, walk_px: float, min_lag: int) 
     for seed in seeds:
         poses = []
         _, steps = _drive(True, seed, walk_px=walk_px, config=config, poses=poses)
-        for k, step in enumerate(steps, start=1):  # steps[j] leads into frame j + 1
+        assert len(steps) == len(poses) - 1  # a step into every frame: steps[j] leads into frame j + 1
+        for k, step in enumerate(steps, start=1):
             link = step.keyframe
             if link is None or link.lag < min_lag:
                 continue
