@@ -23,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "info": ("planar_vo.commands.info", "show what a run would read from a log"),
     "convert": ("planar_vo.commands.convert", "convert a TUM RGB-D folder to MCAP"),
     "synth": ("planar_vo.commands.synth", "render a synthetic corridor log with ground truth"),
-    "bench": ("planar_vo.commands.bench", "benchmarks: solvers, frontend, backend, io, peers, run, sweep, batch"),
+    "bench": ("planar_vo.commands.bench", "benchmarks: solvers, frontend, backend, io, peers, run, sweep, compare, batch, wheel, places, loops"),
 }
 
 

@@ -1,4 +1,4 @@
-"""Benchmarks that print figures: solvers, frontend, backend, closures, io, peers, run, sweep, batch, wheel, places, loops."""
+"""Benchmarks that print figures: solvers, frontend, backend, closures, io, peers, run, sweep, compare, batch, wheel, places, loops."""
 from __future__ import annotations
 
 import argparse
@@ -14,6 +14,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "peers": ("planar_vo.bench.peers", "planar-vo next to Open3D and OpenCV RGB-D odometry"),
     "run": ("planar_vo.bench.run", "planar-vo run end to end: frames per second, CPU per stage, peak memory"),
     "sweep": ("planar_vo.bench.sweep", "accuracy over randomized scenes: drift and yaw distributions per layout"),
+    "compare": ("planar_vo.bench.compare", "two sweeps over the same seeds, before -> after: per layout and per log"),
     "batch": ("planar_vo.bench.batch", "planar-vo batch with 1 and 2 workers against planar-vo run one log after another"),
     "wheel": ("planar_vo.bench.wheel", "wheel odometry fusion over randomized scenes: with and without it"),
     "places": ("planar_vo.bench.places", "place recognition and loop-closure verification on a rendered corridor ring"),
