@@ -15,7 +15,8 @@ def _record(layout: str, seed: int, smoothed: float, raw: float = 0.5, motion: s
     return {"name": f"{layout}_s{seed}_n300_abc", "layout": layout, "seed": seed, "status": "ok", "motion": motion,
             "frames": 300, "path_m": 12.0, "steps": {"dpp": 290, "2pt": 9, "partial": 0, "bridged": 0},
             "raw_drift_pct": raw, "raw_yaw_deg": -0.2, "smoothed_drift_pct": smoothed, "smoothed_yaw_deg": 0.1,
-            "normalised": {}, "manhattan_frames": 1, "scene": {"texture": "medium"}}
+            "normalised": {"dpp": {"n": 290, "sum_sq": [290.0, 72.5, 1160.0], "nees_sum": 870.0}},
+            "manhattan_frames": 1, "scene": {"texture": "medium"}}
 
 
 def _sweeps():
@@ -43,6 +44,8 @@ def test_compare_counts_the_logs_that_moved_and_the_layouts_that_got_worse():
     assert c["layouts"]["all"]["logs"] == 5
     text = format_comparison(c, ("A", "B"))
     assert "straight_s13_n300_abc" in text and "+0.50" in text and "only in B (1" in text
+    # the five compared logs' 290 direction-plus-point steps each, normalised 1 / 0.5 / 2, 3.0
+    assert "dpp         1450 -> 1450    1.00 / 0.50 / 2.00, 3.0 -> 1.00 / 0.50 / 2.00, 3.0" in text
     assert "| straight | 4 |" in format_markdown(c, ("A", "B"))
 
 

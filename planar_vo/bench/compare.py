@@ -7,10 +7,11 @@
 after a change. Printed, over the logs both hold (matched by name: seed, layout, frames
 and scene hash): per layout, median / p90 / worst of the smoothed drift and |final yaw|,
 the worst smoothed-minus-raw drift, before -> after, and how many logs got better, worse
-or stayed within ``--threshold`` (% of the path); then every log whose smoothed drift
-moved by more than the threshold, worst first; then the layouts that got worse (median,
-p90 or worst up by more than the threshold), the question a change must answer before it
-lands. ``--md FILE`` also writes the tables as Markdown.
+or stayed within ``--threshold`` (% of the path); the steps per status and their
+normalised errors (the stated uncertainty's honesty) over all compared logs; every log
+whose smoothed drift moved by more than the threshold, worst first; and the layouts that
+got worse (median, p90 or worst up by more than the threshold), the question a change
+must answer before it lands. ``--md FILE`` also writes the tables as Markdown.
 
 The logs are matched by name, so a change that renders different scenes (a new seed
 range, a changed renderer) compares nothing: the logs only one sweep holds are listed.
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.bench.sweep import summarise
+from planar_vo.bench.sweep import STATUSES, summarise
 
 #: The columns compared per layout: (summary key, label).
 COLUMNS = (("smoothed_drift_pct", "smoothed drift %"), ("smoothed_yaw_deg", "smoothed |yaw| deg"),
@@ -100,6 +101,21 @@ def _stats(row: dict, key: str) -> str:
     return f"{s['median']:.2f} / {s['p90']:.2f} / {s['worst']:.2f}"
 
 
+def _status_lines(g: dict | None) -> list[str]:
+    """Per status of the summary row ``g`` (both sweeps): steps, and the normalised step
+    errors (:func:`planar_vo.bench.sweep.pool_normalised`), before -> after."""
+    if not g:
+        return []
+    out = []
+    for s in STATUSES:
+        nb, na = g["before"]["normalised"].get(s), g["after"]["normalised"].get(s)
+        norm = " -> ".join("-" if v is None else
+                           f"{v['rms'][0]:.2f} / {v['rms'][1]:.2f} / {v['rms'][2]:.2f}, {v['nees']:.1f}"
+                           for v in (nb, na))
+        out.append(f"{s:<8} {g['before']['steps'][s]:>7} -> {g['after']['steps'][s]:<7} {norm}")
+    return out
+
+
 def format_comparison(c: dict, names: tuple[str, str]) -> str:
     """The printed comparison of :func:`compare`; ``names`` label the two sweeps."""
     lines = [f"{'layout':<11}{'logs':>5}  " + "  ".join(f"{label + ' (median / p90 / worst)':>48}"
@@ -107,6 +123,9 @@ def format_comparison(c: dict, names: tuple[str, str]) -> str:
     for name, g in c["layouts"].items():
         cells = "  ".join(f"{_stats(g['before'], k) + '  ->  ' + _stats(g['after'], k):>48}" for k, _ in COLUMNS)
         lines.append(f"{name:<11}{g['logs']:>5}  {cells}   {g['better']:>6} / {g['worse']:>5} / {g['same']:>4}")
+    lines += ["", "steps per status and normalised step error RMS x / y / theta, mean e^T C^-1 e (3 if honest), "
+                  "all compared logs, before -> after:"]
+    lines += [f"  {line}" for line in _status_lines(c["layouts"].get("all"))]
     lines += ["", f"logs whose smoothed drift moved by more than {c['threshold']:.2f} % of the path "
                   f"({len(c['changed'])}), worst first:"]
     for n, b, a in c["changed"]:
