@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.bench.sweep import STATUSES, summarise
+from planar_vo.bench.sweep import STATUSES, group_records, summarise
 
 #: The columns compared per layout: (summary key, label).
 COLUMNS = (("smoothed_drift_pct", "smoothed drift %"), ("smoothed_yaw_deg", "smoothed |yaw| deg"),
@@ -60,7 +60,8 @@ def compare(before: dict[str, dict], after: dict[str, dict], threshold: float) -
     """The comparison of two sweeps' records (:func:`read_sweep`) over their common logs:
     ``{"layouts": {name: {"logs", "before": summary row, "after": summary row, "better",
     "worse", "same"}}, "changed": [(name, before record, after record)] worst first,
-    "worse_layouts": [(name, key, statistic, before, after)], "only_before", "only_after"}``.
+    "worse_layouts": [(name, key, statistic, before, after)], "only_before", "only_after",
+    "failed": [names failed in either]}``.
     A log is better / worse when its smoothed drift moved by more than ``threshold`` (%)."""
     common = sorted(set(before) & set(after), key=lambda n: (before[n]["layout"], before[n]["seed"]))
     ok = [n for n in common if before[n].get("status") == "ok" and after[n].get("status") == "ok"]
@@ -68,32 +69,21 @@ def compare(before: dict[str, dict], after: dict[str, dict], threshold: float) -
     sa = summarise([dict(after[n]) for n in ok])
     delta = {n: after[n]["smoothed_drift_pct"] - before[n]["smoothed_drift_pct"] for n in ok}
     layouts = {}
-    for name in (k for k in sb if k != "failed"):
-        names = [n for n in ok if _in_group(name, before[n], after[n])]
-        d = np.array([delta[n] for n in names])
-        layouts[name] = {"logs": len(names), "before": sb[name], "after": sa[name],
+    # a log counts in the rows of its before-record (its layout; announced or estimated)
+    for name, rs in group_records([before[n] for n in ok]).items():
+        d = np.array([delta[r["name"]] for r in rs])
+        layouts[name] = {"logs": len(rs), "before": sb[name], "after": sa[name],
                          "better": int((d < -threshold).sum()), "worse": int((d > threshold).sum()),
                          "same": int((np.abs(d) <= threshold).sum())}
+    key = "smoothed_drift_pct"
     worse = [(name, key, stat, g["before"][key][stat], g["after"][key][stat])
              for name, g in layouts.items() if g["logs"] and name not in ("all", "announced", "estimated")
-             for key in ("smoothed_drift_pct",) for stat in ("median", "p90", "worst")
-             if g["after"][key][stat] - g["before"][key][stat] > threshold]
+             for stat in ("median", "p90", "worst") if g["after"][key][stat] - g["before"][key][stat] > threshold]
     changed = sorted((n for n in ok if abs(delta[n]) > threshold), key=lambda n: -delta[n])
     return {"threshold": threshold, "layouts": layouts, "changed": [(n, before[n], after[n]) for n in changed],
             "worse_layouts": worse, "only_before": sorted(set(before) - set(after)),
             "only_after": sorted(set(after) - set(before)),
             "failed": sorted(n for n in common if n not in ok)}
-
-
-def _in_group(group: str, b: dict, a: dict) -> bool:
-    """Whether a log counts in the summary row ``group`` (as :func:`summarise` groups)."""
-    if group == "all":
-        return True
-    if group == "announced":
-        return b.get("motion") == "not_estimated"
-    if group == "estimated":
-        return b.get("motion") != "not_estimated"
-    return b["layout"] == group
 
 
 def _stats(row: dict, key: str) -> str:

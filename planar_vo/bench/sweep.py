@@ -196,18 +196,25 @@ METRICS = (("raw_drift_pct", "raw drift %", False), ("smoothed_drift_pct", "smoo
            ("smoothed_minus_raw", "smoothed - raw drift %", False))
 
 
-def summarise(records: list[dict]) -> dict:
+def group_records(records: list[dict]) -> dict[str, list[dict]]:
+    """The summary's rows: ``{row: records}`` -- one per layout (in ``records``' order),
+    ``all``, ``announced`` and ``estimated``, over the records whose status is ``ok``."""
     ok = [r for r in records if r.get("status") == "ok"]
-    for r in ok:
-        r["smoothed_minus_raw"] = r["smoothed_drift_pct"] - r["raw_drift_pct"]
     groups = {lay: [r for r in ok if r["layout"] == lay] for lay in dict.fromkeys(r["layout"] for r in records)}
     groups["all"] = ok
     # a run that announced it could not estimate the motion (report.json ``motion``) is not a
     # silent failure: its drift is listed with all logs and left out of this row
     groups["announced"] = [r for r in ok if r.get("motion") == "not_estimated"]
     groups["estimated"] = [r for r in ok if r.get("motion") != "not_estimated"]
+    return groups
+
+
+def summarise(records: list[dict]) -> dict:
+    for r in records:
+        if r.get("status") == "ok":
+            r["smoothed_minus_raw"] = r["smoothed_drift_pct"] - r["raw_drift_pct"]
     out: dict = {}
-    for name, rs in groups.items():
+    for name, rs in group_records(records).items():
         g = {key: spread([abs(r[key]) if absolute else r[key] for r in rs]) for key, _, absolute in METRICS}
         g["logs"] = len(rs)
         g["frames"] = int(sum(r["frames"] for r in rs))
