@@ -132,6 +132,26 @@ class BackendConfig:
     new_frame_window: int = 15               # frames
     new_frame_gate_deg: float = 3.0          # consistency of a candidate's observations
 
+    # --- wall landmarks (backend/walls.py): the offsets of walls seen from many poses
+    #: A wall seen along a corridor is one landmark whose offset every few tenths of a
+    #: metre bounds the drift across it (the paper's walls give the heading; their distance
+    #: is the same measurement's other half). False: no wall factors.
+    walls: bool = True
+    #: Floor on a wall offset's sigma (m): door frames and posters stand a few mm proud,
+    #: and a wall's depth bias changes with the angle it is seen at.
+    wall_min_sigma_m: float = 0.005
+    #: An observation joins a landmark on the same Manhattan axis whose last offset is
+    #: within this (m): a box against a wall is 0.3 m or more in front of it.
+    wall_gate_m: float = 0.1
+    #: Landmarks not seen for this much travel (m) are no longer searched (a revisit is a
+    #: loop closure's job: the chained pose has drifted by then).
+    wall_window_m: float = 3.0
+    #: One factor per landmark every this much travel (m): nearby frames share their errors.
+    wall_spacing_m: float = 0.5
+    #: A wall normal further than this from every Manhattan axis of the frame is skipped.
+    wall_axis_tol_deg: float = 3.0
+    wall_robust_parameter: float = 2.0       # whitened units
+
     #: After the robust solve, Manhattan and extra relative factors whose whitened residual
     #: exceeds this many sigmas are removed and the graph re-solved (batch only): even a
     #: Cauchy kernel keeps a residual pull ~ k^2 / u per wrong factor. 0 disables.
@@ -186,7 +206,8 @@ class BackendConfig:
                     "same_frame_deg",
                     "isam2_relinearize_xy", "isam2_relinearize_theta_deg", "motion_prior_yaw_accel_deg",
                     "wheel_odom_sigma_min_m", "wheel_odom_sigma_min_deg", "wheel_odom_max_disagreement",
-                    "wheel_odom_check_m", "wheel_odom_distrust", "closure_robust_parameter")
+                    "wheel_odom_check_m", "wheel_odom_distrust", "closure_robust_parameter",
+                    "wall_min_sigma_m", "wall_gate_m", "wall_window_m", "wall_axis_tol_deg", "wall_robust_parameter")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"config key 'backend.{name}' must be > 0, got {getattr(self, name)!r}")
@@ -194,7 +215,7 @@ class BackendConfig:
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
                      "manhattan_instance_size", "closure_max_error_sigmas", "motion_prior_accel",
                      "closure_min_sigma_xy",
-                     "closure_min_sigma_theta_deg",
+                     "closure_min_sigma_theta_deg", "wall_spacing_m",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"config key 'backend.{name}' must be >= 0, got {getattr(self, name)!r}")
@@ -205,5 +226,8 @@ class BackendConfig:
         if self.same_frame_deg >= 22.5:
             raise ConfigError(f"config key 'backend.same_frame_deg' must be < 22.5 (frames closer than 45 deg are told apart), "
                              f"got {self.same_frame_deg}")
+        if self.wall_axis_tol_deg >= 45.0:
+            raise ConfigError(f"config key 'backend.wall_axis_tol_deg' must be < 45 (a wall is on one axis), "
+                              f"got {self.wall_axis_tol_deg}")
         if self.gate_max_deg >= 45.0:
             raise ConfigError(f"config key 'backend.gate_max_deg' must be < 45 (the 90-degree ambiguity), got {self.gate_max_deg}")

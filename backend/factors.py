@@ -1,7 +1,8 @@
 """Factor and noise-model construction for the planar pose graph.
 
 Keys: poses are ``X(k)`` (``gtsam.Pose2``, ``T_odom_base`` of frame ``k``); local Manhattan
-frames are ``M(j)``.
+frames are ``M(j)``; wall landmarks ``W(l)`` (a 1-vector: the wall's offset, see
+:func:`wall_residual`).
 
 Manhattan-frame rotation factor
 -------------------------------
@@ -36,11 +37,11 @@ from functools import partial
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import M, X
+from gtsam.symbol_shorthand import M, W, X
 
 from planar_vo.core.errors import ConfigError
 
-__all__ = ["X", "M", "robust_noise", "step_noise", "manhattan_factor", "manhattan_anchor",
+__all__ = ["X", "M", "W", "wall_residual", "wall_factor", "robust_noise", "step_noise", "manhattan_factor", "manhattan_anchor",
            "manhattan_residual", "robust_weight", "manhattan_tie", "manhattan_value",
            "constant_velocity_residual", "constant_velocity_factor", "TWO_PI", "HALF_PI"]
 
@@ -203,3 +204,60 @@ def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma: float, sigma
     keys = [X(k - 2), X(k - 1), X(k)]
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, sigma, sigma_yaw]))
     return gtsam.CustomFactor(noise, keys, partial(_constant_velocity_error, keys, float(dt1), float(dt2)))
+
+
+# --- wall landmarks (a vertical wall seen from many poses) ----------------------------------
+
+def wall_residual(pose, m: float, d: float, axis: int, anchor, measured: float, jacobians: bool = False):
+    """Offset residual of one wall observation: ``d - n . (t - anchor) - measured`` (m).
+
+    The wall is the line ``{p : n . (p - anchor) = d}`` in odom, its normal
+    ``n = (cos a, sin a)`` at ``a = m + axis * pi / 2``: it belongs to the local Manhattan
+    frame of heading ``m`` (the instance variable), so the graph never gets a second,
+    free wall direction. ``anchor`` (2,) is a fixed point (where the wall was first seen)
+    so that ``d`` stays the wall's distance from there and the lever of a heading error is
+    the distance travelled along the wall, not the distance from the odom origin.
+    ``pose``: (3,) ``T_odom_base`` of the observing frame; ``measured``: the wall's offset
+    from base_link along its normal (:class:`planar_vo.core.steps.WallObservation`).
+
+    With ``jacobians``: also ``(H_pose (1, 3), H_m (1, 1), H_d (1, 1))``, ``H_pose`` with
+    respect to GTSAM's Pose2 tangent (body-frame ``[dx, dy, dtheta]``; the offset is seen
+    from the base_link origin, so it does not depend on the pose's own heading).
+    """
+    a = m + axis * HALF_PI
+    n = np.array([math.cos(a), math.sin(a)])
+    rel = np.asarray(pose[:2], dtype=float) - np.asarray(anchor, dtype=float)
+    r = d - float(n @ rel) - measured
+    if not jacobians:
+        return r
+    H_pose = np.zeros((1, 3))
+    H_pose[0, :2] = -(n @ _rot(pose[2]))
+    H_m = np.array([[-float(np.array([-n[1], n[0]]) @ rel)]])
+    return r, (H_pose, H_m, np.ones((1, 1)))
+
+
+def _wall_error(keys, axis, anchor, measured, native, this, values, H):
+    p = _pose_vec(values, keys[0])
+    m = values.atPose2(keys[1]).theta() if native else values.atRot2(keys[1]).theta()
+    d = float(values.atVector(keys[2])[0])
+    if H is None:
+        return np.array([wall_residual(p, m, d, axis, anchor, measured)])
+    r, (h_pose, h_m, h_d) = wall_residual(p, m, d, axis, anchor, measured, jacobians=True)
+    H[0] = h_pose
+    H[1] = np.array([[0.0, 0.0, h_m[0, 0]]]) if native else h_m
+    H[2] = h_d
+    return np.array([r])
+
+
+def wall_factor(pose: int, instance: int, wall: int, axis: int, anchor, measured: float, sigma: float, *,
+                kind: str, kernel: str, parameter: float):
+    """Factor tying ``X(pose)``, Manhattan instance ``M(instance)`` and wall landmark
+    ``W(wall)`` (a 1-vector, the wall's offset from ``anchor``): :func:`wall_residual`,
+    std ``sigma`` (m). ``kind``: the Manhattan factor kind (``native`` instances are Pose2,
+    ``custom`` ones Rot2). A ``gtsam.CustomFactor``: the back-end adds one per wall only
+    every ``wall_spacing_m`` of travel, so the Python callbacks stay a small share."""
+    keys = [X(pose), M(instance), W(wall)]
+    noise = robust_noise(gtsam.noiseModel.Isotropic.Sigma(1, sigma), kernel, parameter)
+    return gtsam.CustomFactor(noise, keys, partial(_wall_error, keys, int(axis),
+                                                   np.asarray(anchor, dtype=float).copy(), float(measured),
+                                                   kind == "native"))

@@ -1,5 +1,5 @@
 """Planar pose graph: one ``gtsam.Pose2`` per frame, SE(2) step factors, Manhattan-frame
-rotation factors, extra relative factors; solved in batch (Levenberg-Marquardt) or
+rotation factors, wall-offset factors on wall landmarks, extra relative factors; solved in batch (Levenberg-Marquardt) or
 incrementally (iSAM2).
 
 Poses are SE(2) ``T_odom_base`` ``(x, y, theta)``; ``odom`` coincides with ``base`` at the
@@ -20,9 +20,10 @@ import numpy as np
 
 from planar_vo.backend.association import ManhattanAssociator, ManhattanLink
 from planar_vo.backend.config import BackendConfig
-from planar_vo.backend.factors import (M, X, constant_velocity_factor, manhattan_anchor, manhattan_factor,
+from planar_vo.backend.factors import (M, W, X, constant_velocity_factor, manhattan_anchor, manhattan_factor,
                                        manhattan_tie, manhattan_value, robust_noise, robust_weight,
-                                       step_noise)
+                                       step_noise, wall_factor)
+from planar_vo.backend.walls import WallMap
 from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL, FrameResult
 from planar_vo.core.geometry import se2_compose, wrap_angle, wrap_quarter
 from planar_vo.backend.wheel import fuse_steps
@@ -121,16 +122,17 @@ def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return result, int(opt.iterations()), float(opt.error())
 
 
-def _gaussian_copy(graph: gtsam.NonlinearFactorGraph, skip: set[int]) -> gtsam.NonlinearFactorGraph:
+def _gaussian_copy(graph: gtsam.NonlinearFactorGraph, skip: set[int], gaussian: bool = True) -> gtsam.NonlinearFactorGraph:
     """The factors of ``graph`` but those at ``skip`` (and removed ones), every robust
     ``BetweenFactorPose2`` (steps, native Manhattan links) replaced by its Gaussian core
-    (a ``custom`` Manhattan link, a Python ``CustomFactor``, keeps its kernel)."""
+    (a ``custom`` Manhattan link, a Python ``CustomFactor``, keeps its kernel); with
+    ``gaussian`` False the factors as they are. The copy shares the factors."""
     out = gtsam.NonlinearFactorGraph()
     for idx in range(graph.size()):
         f = graph.at(idx)
         if f is None or idx in skip:
             continue
-        if isinstance(f, gtsam.BetweenFactorPose2) and isinstance(f.noiseModel(), gtsam.noiseModel.Robust):
+        if gaussian and isinstance(f, gtsam.BetweenFactorPose2) and isinstance(f.noiseModel(), gtsam.noiseModel.Robust):
             keys = f.keys()
             f = gtsam.BetweenFactorPose2(keys[0], keys[1], f.measured(), f.noiseModel().noise())
         out.add(f)
@@ -226,6 +228,7 @@ class _GraphBuilder:
         self._yaw_accel = math.radians(config.motion_prior_yaw_accel_deg)
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
+        self.walls = WallMap(config)
 
     def step_information(self, information: np.ndarray, status: str) -> np.ndarray:
         """Information actually used for a step: bridged override, then sigma floors."""
@@ -344,8 +347,9 @@ class _GraphBuilder:
                 self._inst_links.append(0)
                 self._inst_last.append(k)
             self.last_links = list(out.links)
+            inst_of = {}
             for link in out.links:
-                inst = self._instance_for(link.frame, k, graph, values)
+                inst = inst_of[link.frame] = self._instance_for(link.frame, k, graph, values)
                 f = manhattan_factor(link.pose, inst, link.measured, link.sigma,
                                      kind=cfg.manhattan_factor, kernel=cfg.robust_kernel,
                                      parameter=cfg.manhattan_robust_parameter)
@@ -355,11 +359,40 @@ class _GraphBuilder:
             self.counts["manhattan"] += len(out.links)
             self.assoc_counts.update(associated=out.associated, rejected=out.rejected,
                                      ignored=out.ignored, new_frames=len(out.new_frames))
+            if cfg.walls and result.walls:
+                self._wall_factors(k, guess, result.walls, [l for l in out.links if l.pose == k], inst_of,
+                                   graph, values)
         self._motion_prior(k, result, odometry, graph)
         values.insert(X(k), gtsam.Pose2(*guess))
         self.guess.append(guess)
         self.n += 1
         return graph, values, k
+
+    def _wall_factors(self, k: int, guess: np.ndarray, walls, links, inst_of: dict, graph, values) -> None:
+        """Wall-offset factors of frame ``k`` (backend/walls.py): each wall the frame sees on
+        an axis of a Manhattan frame it is linked to, tied to that frame's instance and to
+        the wall's landmark, which is opened (its value inserted) at its first sighting."""
+        for w in self.walls.observe(k, guess, walls, links, inst_of):
+            if w.new:
+                values.insert(W(w.wall), np.array([w.d]))
+                self.counts["wall_landmarks"] += 1
+            graph.add(self._wall_factor(w))
+
+    def flush_walls(self) -> gtsam.NonlinearFactorGraph:
+        """The wall factors of every landmark's last sighting not yet in the graph (at a solve)."""
+        graph = gtsam.NonlinearFactorGraph()
+        for w in self.walls.flush():
+            graph.add(self._wall_factor(w))
+        return graph
+
+    def _wall_factor(self, w):
+        cfg = self.cfg
+        f = wall_factor(w.pose, w.instance, w.wall, w.axis, w.anchor, w.measured, w.sigma,
+                        kind=cfg.manhattan_factor, kernel=cfg.robust_kernel, parameter=cfg.wall_robust_parameter)
+        self.counts["wall"] += 1
+        if cfg.robust_kernel != "none":
+            self.robust.append(("wall", f))
+        return f
 
     def _motion_prior(self, k: int, result: FrameResult, odometry, graph) -> None:
         """Constant base_link velocity across steps whose translation no estimator measured
@@ -512,7 +545,8 @@ class _GraphBuilder:
         for kind, f in self.robust:
             noise = f.noiseModel()
             u = noise.noise().mahalanobisDistance(f.unwhitenedError(values))
-            par = cfg.manhattan_robust_parameter if kind == "manhattan" else cfg.step_robust_parameter
+            par = {"manhattan": cfg.manhattan_robust_parameter,
+                   "wall": cfg.wall_robust_parameter}.get(kind, cfg.step_robust_parameter)
             if robust_weight(cfg.robust_kernel, par, u) < 0.5:
                 out[kind] += 1
         return dict(out)
@@ -533,6 +567,7 @@ class _GraphBuilder:
             "closures": {"added": len(self.closures), "active": len(self.active_closures()),
                          "removed": sum(1 for c in self.closures if c.status == "removed")},
             "closure_time_s": self.closure_time,
+            "walls": {"landmarks": len(self.walls.walls), **self.walls.counts},
         }
 
 
@@ -638,6 +673,7 @@ class PlanarPoseGraph:
         cfg = self.config
         t0 = time.perf_counter()
         self._b.reinstate_closures()
+        self._graph.push_back(self._b.flush_walls())
         closures = self._b.closures
         for c in closures:
             self._graph.remove(c.index)
@@ -807,6 +843,7 @@ class IncrementalPlanarPoseGraph:
         thr.insert(("x", np.array([cfg.isam2_relinearize_xy, cfg.isam2_relinearize_xy, th])))
         # M(.): native instances are Pose2 with an unused (pinned) translation; Rot2 otherwise.
         thr.insert(("m", np.array([1.0, 1.0, th]) if cfg.manhattan_factor == "native" else np.array([th])))
+        thr.insert(("w", np.array([cfg.isam2_relinearize_xy])))  # W(.): a wall's offset (m)
         params.setRelinearizeThreshold(thr)
         params.relinearizeSkip = cfg.isam2_relinearize_skip
         params.setFactorization(cfg.isam2_factorization)
@@ -875,10 +912,10 @@ class IncrementalPlanarPoseGraph:
         """(N, 3) float64 ``T_odom_base`` of iSAM2's factors without the loop closures, by
         batch Levenberg-Marquardt from the chained initial values (iSAM2 itself cannot
         un-learn them): for evaluate's side-by-side, not used by the run."""
-        graph = self._isam.getFactorsUnsafe().clone()
-        for c in self._b.closures:
-            if c.status == "active" and c.index is not None:
-                graph.remove(c.index)
+        # A copy sharing the factors (a graph's clone() clones each factor, which a Python
+        # CustomFactor -- wall offsets, the motion prior -- cannot do).
+        closures = {c.index for c in self._b.closures if c.status == "active" and c.index is not None}
+        graph = _gaussian_copy(self._isam.getFactorsUnsafe(), closures, gaussian=False)
         values = gtsam.Values(self._isam.getLinearizationPoint())
         for k, p in enumerate(self._b.guess):
             values.update(X(k), gtsam.Pose2(*map(float, p)))
@@ -995,6 +1032,8 @@ class IncrementalPlanarPoseGraph:
             # every closure ever added judged afresh, as the batch graph does: a closure
             # removed when it was alone may fit now that later ones share its pull
             self._new_closures += self._b.reinstate_closures()
+        if flush:
+            self._pending.push_back(self._b.flush_walls())
         if flush or self._pending.size() or self._new_closures:
             self.update()
         return self._b.poses_from(self._isam.calculateBestEstimate())

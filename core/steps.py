@@ -43,6 +43,26 @@ class ManhattanObservation:
 
 
 @dataclass
+class WallObservation:
+    """One vertical wall seen in one frame, in base_link (REP 103: x forward, y left).
+
+    ``normal_yaw``: heading (rad, counter-clockwise from base_link x) of the wall's
+    horizontal normal, pointing from the robot towards the wall. ``offset``: distance (m)
+    from the base_link origin to the wall plane along that normal (> 0 in front of the
+    wall), i.e. the wall is ``{p : n . p = offset}`` with ``n = (cos, sin)(normal_yaw)``.
+    ``sigma``: standard deviation (m) of ``offset`` in one image, the plane fit and the
+    depth errors correlated across the plane (:attr:`Plane.yaw_sigma`'s systematic term).
+    ``support``: image fraction of the wall's points. The back-end ties frames that see the
+    same wall to one wall landmark (backend/walls.py): a wall bounds the drift across it.
+    """
+
+    normal_yaw: float
+    offset: float
+    sigma: float
+    support: float = 0.0
+
+
+@dataclass
 class KeyframeLink:
     """The motion of base_link from a keyframe ``lag`` frames back to this frame, measured
     directly (not chained): ``pose`` (3,) ``T_base_k_base_curr`` as ``(x, y, theta)`` with
@@ -116,7 +136,8 @@ class FrameDiagnostics:
 
 @dataclass
 class FrameResult:
-    """Front-end output for one frame: the step into it and its Manhattan observations."""
+    """Front-end output for one frame: the step into it, its Manhattan observations and
+    the walls it saw (``walls``: :class:`WallObservation`, those the Manhattan frames use)."""
 
     index: int
     stamp: float
@@ -124,3 +145,4 @@ class FrameResult:
     manhattan: list[ManhattanObservation] = field(default_factory=list)  # dominant first
     timings: dict[str, float] = field(default_factory=dict)              # seconds per stage
     diagnostics: FrameDiagnostics = field(default_factory=FrameDiagnostics)
+    walls: list[WallObservation] = field(default_factory=list)

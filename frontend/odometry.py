@@ -52,7 +52,7 @@ from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.pointplanes import refine_pairs_on_planes
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
 from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
-                                      FrameResult, KeyframeLink, ManhattanObservation, Step)
+                                      FrameResult, KeyframeLink, ManhattanObservation, Step, WallObservation)
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
@@ -124,6 +124,32 @@ def _offset_var_fit(w: Plane) -> float:
     q = w.normal / w.offset
     J = -q / float(np.linalg.norm(q)) ** 3
     return max(float(J @ w.cov_q @ J), 0.0)
+
+
+def wall_observations(walls: list[Plane], m_base_lev: np.ndarray, min_support: float, max_offset: float,
+                      min_width: float) -> list[WallObservation]:
+    """The walls a back-end can use as landmarks, in base_link (:class:`WallObservation`).
+
+    ``m_base_lev``: (3,) :func:`geometry.mount_se2`, the levelled camera's planar pose
+    ``(x, y, yaw)`` in base_link. A wall ``n_lev . p_lev = d`` (2-D, lev x forward, y left)
+    is ``n_b . p_b = d + n_b . c`` in base_link, with ``n_b`` the normal rotated by the
+    mount's yaw and ``c`` the camera's position. Kept: walls with at least ``min_support``
+    of the image, nearer than ``max_offset`` (m; beyond it the range limit biases the
+    offset) and at least ``min_width`` (m) wide (box faces and pillars are left out: their
+    few points fit a poorer plane and they are easily confused with the wall behind). The
+    offset's sigma adds the depth errors correlated across the plane to the fit's, since a
+    landmark compares one wall's offset seen from far-apart places, where they do not cancel.
+    """
+    out = []
+    c, mount_yaw = np.asarray(m_base_lev[:2], dtype=float), float(m_base_lev[2])
+    for w in walls:
+        if w.support < min_support or w.offset > max_offset or w.width < min_width:
+            continue
+        yaw = float(geometry.wrap_angle(w.yaw + mount_yaw))
+        n_b = np.array([math.cos(yaw), math.sin(yaw)])
+        var = _offset_var_fit(w) + (w.systematic * w.rms_rel * w.offset) ** 2
+        out.append(WallObservation(yaw, float(w.offset + n_b @ c), float(math.sqrt(var)), float(w.support)))
+    return out
 
 
 def _collinear(x: np.ndarray, min_spread: float, info: FrameDiagnostics, min_across: float = math.inf) -> bool:
@@ -424,9 +450,11 @@ class PlanarOdometry:
                                              f.score, f.track_id)
                         for f in frames if f.score >= self.config.manhattan.min_score
                         and f.width >= self.config.manhattan.min_wall_width_m]
+        walls = wall_observations(det.walls, geometry.mount_se2(self.mount.T_base_cam), self.config.odometry.wall_min_support,
+                                  self.config.odometry.wall_max_offset_m, self.config.manhattan.min_wall_width_m)
         timings["total"] = clock() - t_start
         self._n += 1
-        return FrameResult(frame.index, frame.stamp, step, observations, timings, info)
+        return FrameResult(frame.index, frame.stamp, step, observations, timings, info, walls)
 
     def _measure(self, x_lev, P_lev, matches, frames, walls, planes, yaw_prior, info):
         """``(step or None, levelled (yaw, t, yaw variance))`` into this frame: estimated

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -80,6 +81,10 @@ def test_cli_compares_and_fails_in_one_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "5 compared" in out and "layouts that got worse: straight" in out
     assert "straight_s13_n300_abc" in md.read_text()
+    # every row of the layout table has as many cells as its header (a bare | in a label splits one)
+    rows = [r for r in md.read_text().splitlines() if r.startswith("| ")][:3]
+    cells = [len(re.split(r"(?<!\\)\|", r)) for r in rows]
+    assert len(set(cells)) == 1, rows
     assert main(["bench", "compare", str(tmp_path / "a"), str(tmp_path / "nowhere")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no sweep.json there" in err[0]

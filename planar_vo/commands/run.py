@@ -98,6 +98,10 @@ def print_summary(result) -> None:
     if lc.get("keyframes") is not None:
         print(f"loop closure: {lc['keyframes']} keyframes, {lc['candidates']} candidates, {lc['accepted']} closures "
               f"kept ({lc['rejected']} rejected by verification, {lc['removed_by_graph']} removed by the graph)")
+    walls = (r.get("backend") or {}).get("walls") or {}
+    if walls.get("factors"):
+        print(f"walls: {walls['landmarks']} wall landmarks, {walls['factors']} offset factors "
+              f"({walls['associated']} of {walls['observations']} wall sightings associated)")
     wo = r.get("wheel_odometry") or {}
     if wo.get("used"):
         print(f"wheel odometry: {wo['topic']} ({wo['source']}), a factor on {wo['steps_with_factor']} steps, "
