@@ -374,7 +374,7 @@ class _GraphBuilder:
         the wall's landmark, which is opened (its value inserted) at its first sighting."""
         for w in self.walls.observe(k, guess, walls, links, inst_of):
             if w.new:
-                values.insert(W(w.wall), np.array([w.d]))
+                values.insert(W(w.wall), np.array([w.measured]))
                 self.counts["wall_landmarks"] += 1
             graph.add(self._wall_factor(w))
 

@@ -37,24 +37,22 @@ HALF_PI = 0.5 * math.pi
 
 @dataclass
 class WallLandmark:
-    """One wall line: ``n . (p - anchor) = d`` with ``n`` at ``m_frame + axis * pi/2``.
+    """One wall line: ``n . (p - anchor) = d`` with ``n`` at ``m_frame + axis * pi/2``
+    (``d`` lives in the graph; its initial value is the first sighting's offset).
 
     ``frame``: the local Manhattan frame (association index); ``axis``: 0..3;
-    ``anchor``: (2,) odom point where it was first seen; ``d``: its initial offset (m);
+    ``anchor``: (2,) odom point where it was first seen;
     ``last_d``: the offset predicted at the last sighting (the gate's reference);
     ``last_travel``: the travel (m) at that sighting, ``last_factor`` at the last factor;
-    ``n_factors``: factors on it so far; ``pending``: its latest sighting that is not
-    a factor yet (:class:`WallMatch`), or None.
+    ``pending``: its latest sighting that is not a factor yet (:class:`WallMatch`), or None.
     """
 
     frame: int
     axis: int
     anchor: np.ndarray
-    d: float
     last_d: float
     last_travel: float
     last_factor: float
-    n_factors: int = 0
     pending: "WallMatch | None" = None
 
 
@@ -62,8 +60,9 @@ class WallLandmark:
 class WallMatch:
     """One observation to turn into a factor: graph frame ``pose``, the Manhattan
     ``instance`` it is linked to, landmark ``wall``, its ``frame``/``axis``, the
-    ``anchor``, and the observation's offset and sigma (floored); ``new`` when it opens
-    the landmark (the caller inserts its initial value ``d``)."""
+    ``anchor``, and the observation's offset ``measured`` and sigma (floored); ``new`` when
+    it opens the landmark (the caller inserts ``measured`` as the landmark's initial value:
+    seen from its anchor, the wall is that far away)."""
 
     pose: int
     instance: int
@@ -74,7 +73,6 @@ class WallMatch:
     measured: float
     sigma: float
     new: bool
-    d: float
 
 
 class WallMap:
@@ -121,21 +119,19 @@ class WallMap:
             lid = self._find(frame, axis, n, xy, w.offset, used)
             sigma = math.hypot(w.sigma, self.cfg.wall_min_sigma_m)
             if lid is None:
-                self.walls.append(WallLandmark(frame, axis, xy.copy(), float(w.offset), float(w.offset),
-                                               self.travel, self.travel))
+                self.walls.append(WallLandmark(frame, axis, xy.copy(), float(w.offset), self.travel, self.travel))
                 lid = len(self.walls) - 1
                 self._active.append(lid)
                 self.counts["new"] += 1
                 used.add(lid)
-                out.append(WallMatch(k, inst, lid, frame, axis, xy.copy(), float(w.offset), sigma, True, float(w.offset)))
-                self.walls[lid].n_factors += 1
+                out.append(WallMatch(k, inst, lid, frame, axis, xy.copy(), float(w.offset), sigma, True))
                 continue
             used.add(lid)
             L = self.walls[lid]
             self.counts["associated"] += 1
             L.last_d = float(w.offset + n @ (xy - L.anchor))
             L.last_travel = self.travel
-            L.pending = WallMatch(k, inst, lid, frame, axis, L.anchor, float(w.offset), sigma, False, L.d)
+            L.pending = WallMatch(k, inst, lid, frame, axis, L.anchor, float(w.offset), sigma, False)
             if self.travel - L.last_factor >= self.cfg.wall_spacing_m:
                 out.append(self._take(L))
         self.counts["factors"] += len(out)
@@ -151,7 +147,6 @@ class WallMap:
     def _take(self, L: WallLandmark) -> WallMatch:
         m, L.pending = L.pending, None
         L.last_factor = L.last_travel
-        L.n_factors += 1
         return m
 
     def _frame_axis(self, normal_yaw: float, links) -> tuple[int, int, float] | None:

@@ -445,12 +445,13 @@ class PlanarOdometry:
         self._manhattan.commit(frames, lev_motion[0], lev_motion[2],
                                distrusted={veto["track_id"]} if veto else frozenset())
         self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls, planes, depth, R)
-        mount_yaw = geometry.mount_se2(self.mount.T_base_cam)[2]
+        m_base_lev = geometry.mount_se2(self.mount.T_base_cam)
+        mount_yaw = m_base_lev[2]
         observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
                                              f.score, f.track_id)
                         for f in frames if f.score >= self.config.manhattan.min_score
                         and f.width >= self.config.manhattan.min_wall_width_m]
-        walls = wall_observations(det.walls, geometry.mount_se2(self.mount.T_base_cam), self.config.odometry.wall_min_support,
+        walls = wall_observations(det.walls, m_base_lev, self.config.odometry.wall_min_support,
                                   self.config.odometry.wall_max_offset_m, self.config.manhattan.min_wall_width_m)
         timings["total"] = clock() - t_start
         self._n += 1

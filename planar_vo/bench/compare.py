@@ -140,9 +140,14 @@ def format_comparison(c: dict, names: tuple[str, str]) -> str:
     return "\n".join(lines)
 
 
+def _md_cell(text: str) -> str:
+    """``text`` safe inside a markdown table cell (``|yaw|`` would split the cell)."""
+    return text.replace("|", "\\|")
+
+
 def format_markdown(c: dict, names: tuple[str, str]) -> str:
     out = [f"`planar-vo bench compare {names[0]} {names[1]}` (threshold {c['threshold']:.2f} % of the path)", "",
-           "| layout | logs | " + " | ".join(f"{label.replace('|', chr(92) + '|')} before -> after" for _, label in COLUMNS)
+           "| layout | logs | " + " | ".join(f"{_md_cell(label)} before -> after" for _, label in COLUMNS)
            + " | better / worse / same |", "|" + " --- |" * (3 + len(COLUMNS))]
     for name, g in c["layouts"].items():
         out.append(f"| {name} | {g['logs']} | " + " | ".join(
