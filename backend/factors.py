@@ -195,14 +195,18 @@ def _constant_velocity_error(keys, dt1, dt2, this, values, H):
     return r
 
 
-def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma: float, sigma_yaw: float):
+def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma, sigma_yaw: float, *,
+                             kernel: str = "none", parameter: float = 3.0):
     """Motion prior on ``X(k-2), X(k-1), X(k)``: the base_link velocity of step k equals that
-    of step k-1 within ``sigma`` (m/s) and ``sigma_yaw`` (rad/s)
-    (:func:`constant_velocity_residual`). A ``gtsam.CustomFactor`` (Python callback): added
-    only next to steps whose motion vision did not measure, where it carries the velocity
-    measured before and after a gap."""
+    of step k-1 within ``sigma`` (m/s; a scalar, or (2,) for base_link x and y) and
+    ``sigma_yaw`` (rad/s) (:func:`constant_velocity_residual`). A ``gtsam.CustomFactor``
+    (Python callback): added only around steps whose motion vision did not measure, where it
+    carries the velocity measured before and after a gap. ``kernel``, ``parameter``: a
+    robust kernel (:func:`robust_noise`), so that a base braking where its steps were
+    measured is not held to the cruise the prior states."""
     keys = [X(k - 2), X(k - 1), X(k)]
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, sigma, sigma_yaw]))
+    noise = robust_noise(gtsam.noiseModel.Diagonal.Sigmas(np.array([*np.broadcast_to(np.asarray(sigma, float), 2),
+                                                                     sigma_yaw])), kernel, parameter)
     return gtsam.CustomFactor(noise, keys, partial(_constant_velocity_error, keys, float(dt1), float(dt2)))
 
 

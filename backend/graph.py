@@ -223,8 +223,15 @@ class _GraphBuilder:
                                 math.radians(config.step_min_sigma_theta_deg)]) ** 2
         self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
                                         math.radians(config.closure_min_sigma_theta_deg)]) ** 2
-        #: (stamp s, step left translation unmeasured) of the last two frames: the motion prior's
-        self._recent: list[tuple[float, bool]] = []
+        #: the motion prior's memory, per frame: stamp (s), whether its step left the
+        #: translation unmeasured, and the step's base_link translation (2,) with its stated
+        #: variances (2,) (None for the first frame)
+        self._mp_stamps: list[float] = []
+        self._mp_weak: list[bool] = []
+        self._mp_steps: list[tuple[np.ndarray, np.ndarray] | None] = []
+        self._mp_upto = 1               # the last frame whose velocity the prior ties
+        self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
+        self._mp_last_weak = -(1 << 30)  # the last frame whose translation was unmeasured
         self._yaw_accel = math.radians(config.motion_prior_yaw_accel_deg)
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
@@ -362,7 +369,7 @@ class _GraphBuilder:
             if cfg.walls and result.walls:
                 self._wall_factors(k, guess, result.walls, [l for l in out.links if l.pose == k], inst_of,
                                    graph, values)
-        self._motion_prior(k, result, odometry, graph)
+        self._motion_prior(k, result, odometry, None if k == 0 else (p, info), graph)
         values.insert(X(k), gtsam.Pose2(*guess))
         self.guess.append(guess)
         self.n += 1
@@ -378,11 +385,13 @@ class _GraphBuilder:
                 self.counts["wall_landmarks"] += 1
             graph.add(self._wall_factor(w))
 
-    def flush_walls(self) -> gtsam.NonlinearFactorGraph:
-        """The wall factors of every landmark's last sighting not yet in the graph (at a solve)."""
+    def flush(self) -> gtsam.NonlinearFactorGraph:
+        """The factors held back until more frames arrived, at a solve: the wall factors of
+        every landmark's last sighting and the motion priors waiting for the steps after them."""
         graph = gtsam.NonlinearFactorGraph()
         for w in self.walls.flush():
             graph.add(self._wall_factor(w))
+        self._release_priors(graph, everything=True)
         return graph
 
     def _wall_factor(self, w):
@@ -394,25 +403,113 @@ class _GraphBuilder:
             self.robust.append(("wall", f))
         return f
 
-    def _motion_prior(self, k: int, result: FrameResult, odometry, graph) -> None:
+    def _motion_prior(self, k: int, result: FrameResult, odometry, step, graph) -> None:
         """Constant base_link velocity across steps whose translation no estimator measured
-        (partial, bridged; a step with wheel odometry is measured): the front-end only
-        extrapolates the velocity forward from before a gap, this ties a gap to the speed
-        measured on both sides (and fills a gap at the start of a run, where there is no
-        "before": a textureless corridor until its end wall comes into range)."""
+        (partial, bridged; a step with wheel odometry is measured) and the
+        ``motion_prior_window`` steps on each side: the front-end only extrapolates the
+        velocity forward from before a gap, this ties a gap to the speed measured on both
+        sides (and fills a gap at the start of a run, where there is no "before": a
+        textureless corridor until its end wall comes into range). ``step``: the step
+        ``(pose (3,), information (3, 3))`` into frame ``k`` (None for the first frame).
+        Each prior waits for the ``2 motion_prior_window`` frames after it, whose steps
+        its acceleration is fitted to (:meth:`_prior_accel`), and for its gap to end, or
+        for the solve (:meth:`flush`)."""
         weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL))
-        recent, self._recent = self._recent, (self._recent + [(float(result.stamp), weak)])[-2:]
-        accel = self.cfg.motion_prior_accel
-        if k < 2 or accel <= 0 or not (weak or recent[1][1]):
-            return
-        dt1 = recent[1][0] - recent[0][0]
-        dt2 = float(result.stamp) - recent[1][0]
-        if not (dt1 > 0 and dt2 > 0):
-            return  # repeated stamps: no duration to turn into a velocity
-        # The velocity may change by what the acceleration does between the steps' midpoints.
-        dt = 0.5 * (dt1 + dt2)
-        graph.add(constant_velocity_factor(k, dt1, dt2, accel * dt, self._yaw_accel * dt))
-        self.counts["motion_prior"] += 1
+        self._mp_stamps.append(float(result.stamp))
+        self._mp_weak.append(weak)
+        # every step's translation and stated noise: a guessed one's noise keeps it out of the fit
+        self._mp_steps.append(None if step is None else
+                              (np.asarray(step[0][:2], float), np.diag(np.linalg.inv(step[1]))[:2].copy()))
+        w = self.cfg.motion_prior_window
+        if weak:
+            self._mp_last_weak = k
+        if self.cfg.motion_prior_accel > 0 and k - self._mp_last_weak <= w + 1:
+            # a gap reaches back over the measured steps before it (known when it starts)
+            first = max(2, self._mp_upto + 1, k - w if weak else k)
+            self._mp_pending.extend(range(first, k + 1))
+            self._mp_upto = max(self._mp_upto, k)
+        self._release_priors(graph)
+
+    def _release_priors(self, graph, everything: bool = False) -> None:
+        """Add the pending motion priors whose fitting window has arrived and whose gap has
+        ended (this frame's translation measured), or all of them with ``everything``: the
+        velocity of step j tied to that of step j-1."""
+        last = len(self._mp_stamps) - 1
+        if not everything and self._mp_last_weak == last:
+            return  # a gap goes on: its priors need the speed measured after it
+        h = 2 * self.cfg.motion_prior_window
+        while self._mp_pending and (everything or self._mp_pending[0] + h <= last):
+            j = self._mp_pending.pop(0)
+            dt1 = self._mp_stamps[j - 1] - self._mp_stamps[j - 2]
+            dt2 = self._mp_stamps[j] - self._mp_stamps[j - 1]
+            if not (dt1 > 0 and dt2 > 0):
+                continue  # repeated stamps: no duration to turn into a velocity
+            accel = self._prior_accel(j)
+            if not (self._mp_weak[j] or self._mp_weak[j - 1]) and np.all(accel >= self.cfg.motion_prior_accel):
+                # two measured steps whose neighbours show no steadier speed than the upper
+                # bound: the prior would only smooth them (a 30 Hz tuning hall of 2-point
+                # steps went 0.50 -> 1.09 % with it)
+                continue
+            # The velocity may change by what the acceleration does between the steps' midpoints.
+            dt = 0.5 * (dt1 + dt2)
+            f = constant_velocity_factor(j, dt1, dt2, accel * dt, self._yaw_accel * dt,
+                                         kernel=self.cfg.robust_kernel, parameter=self.cfg.step_robust_parameter)
+            graph.add(f)
+            self.counts["motion_prior"] += 1
+            if self.cfg.robust_kernel != "none":
+                self.robust.append(("motion_prior", f))
+
+    def _velocity(self, i: int):
+        """Step ``i`` as ``(t, v (2,), n (2,), fine (2,))``: its midpoint (s), base_link
+        velocity (m/s), the velocity's stated variance and whether it was measured finely
+        enough to show an acceleration below ``motion_prior_accel`` from one step to the next
+        (a guessed step never is); None for the first frame and repeated stamps."""
+        dt = self._mp_stamps[i] - self._mp_stamps[i - 1] if i >= 1 else 0.0
+        if self._mp_steps[i] is None or not dt > 0:
+            return None
+        s, var = self._mp_steps[i]
+        n = var / dt ** 2
+        # two such steps' velocity change has less noise than the cap's change, (cap dt)^2
+        fine = n < 0.5 * (self.cfg.motion_prior_accel * dt) ** 2
+        return 0.5 * (self._mp_stamps[i] + self._mp_stamps[i - 1]), s / dt, n, fine
+
+    def _prior_accel(self, k: int) -> np.ndarray:
+        """(2,) m/s^2: the base_link acceleration (x, y) the prior on step ``k`` allows,
+        within ``[motion_prior_min_accel, motion_prior_accel]``: the RMS velocity change of
+        consecutive fine steps (:meth:`_velocity`) within ``2 motion_prior_window`` frames,
+        weighted by their inverse noise (the upper bound when fewer than three pairs were
+        fine), and at least the mean acceleration across the gap step ``k`` is in
+        (:meth:`_gap_accel`). Their noise stays in: stated sigmas are conservative (a
+        braking partial step said 2.1-3.5 mm and erred 0.1-0.5), so taking it out would call a
+        braking base cruising."""
+        c = self.cfg
+        h = 2 * c.motion_prior_window
+        steps = [self._velocity(i) for i in range(max(1, k - h), min(k + h, len(self._mp_steps) - 1) + 1)]
+        a = np.full(2, c.motion_prior_accel)
+        for ax in range(2):
+            fine = [(t, v[ax], n[ax]) for t, v, n, f in filter(None, steps) if f[ax]]
+            if len(fine) < 4:
+                continue
+            t, v, n = (np.array(x) for x in zip(*fine))
+            w = 1.0 / (n[1:] + n[:-1])
+            a[ax] = math.sqrt(float((w * np.diff(v) ** 2 / np.diff(t) ** 2).sum() / w.sum()))
+        return np.clip(np.maximum(a, self._gap_accel(k)), min(c.motion_prior_min_accel, c.motion_prior_accel),
+                       c.motion_prior_accel)
+
+    def _gap_accel(self, k: int) -> np.ndarray:
+        """(2,) m/s^2, per axis: where steps that are not fine (:meth:`_velocity`) lie
+        between the last fine step before step ``k`` and the first from ``k`` on, the mean
+        acceleration between those two (the gap's steps must span the change of speed
+        measured across it); else 0."""
+        out = np.zeros(2)
+        last = len(self._mp_steps) - 1
+        for ax in range(2):
+            b = next((i for i in range(k - 1, 0, -1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
+            a = next((i for i in range(k, last + 1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
+            if a is not None and b is not None and a - b > 1:
+                (tb, vb, _, _), (ta, va, _, _) = self._velocity(b), self._velocity(a)
+                out[ax] = abs(va[ax] - vb[ax]) / (ta - tb)
+        return out
 
     def _new_instance(self, yaw: float, graph, values) -> int:
         i = self.n_inst
@@ -673,7 +770,7 @@ class PlanarPoseGraph:
         cfg = self.config
         t0 = time.perf_counter()
         self._b.reinstate_closures()
-        self._graph.push_back(self._b.flush_walls())
+        self._graph.push_back(self._b.flush())
         closures = self._b.closures
         for c in closures:
             self._graph.remove(c.index)
@@ -1033,7 +1130,7 @@ class IncrementalPlanarPoseGraph:
             # removed when it was alone may fit now that later ones share its pull
             self._new_closures += self._b.reinstate_closures()
         if flush:
-            self._pending.push_back(self._b.flush_walls())
+            self._pending.push_back(self._b.flush())
         if flush or self._pending.size() or self._new_closures:
             self.update()
         return self._b.poses_from(self._isam.calculateBestEstimate())
