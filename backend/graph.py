@@ -341,9 +341,11 @@ class _GraphBuilder:
             pose0 = np.zeros(3)
             self.raw.append(pose0)
             guess = pose0.copy()
+            step = None
         else:
             p, info = self._step_factors(k, result, odometry, graph)
-            self.assoc.predict(float(p[2]), float(np.linalg.inv(info)[2, 2]))
+            step = (p, np.linalg.inv(info))
+            self.assoc.predict(float(p[2]), float(step[1][2, 2]))
             prev = self.guess[-1] if previous is None else previous
             guess = se2_compose(prev, p)
         if cfg.manhattan and result.manhattan:
@@ -369,7 +371,7 @@ class _GraphBuilder:
             if cfg.walls and result.walls:
                 self._wall_factors(k, guess, result.walls, [l for l in out.links if l.pose == k], inst_of,
                                    graph, values)
-        self._motion_prior(k, result, odometry, None if k == 0 else (p, info), graph)
+        self._motion_prior(k, result, odometry, step, graph)
         values.insert(X(k), gtsam.Pose2(*guess))
         self.guess.append(guess)
         self.n += 1
@@ -410,7 +412,7 @@ class _GraphBuilder:
         velocity forward from before a gap, this ties a gap to the speed measured on both
         sides (and fills a gap at the start of a run, where there is no "before": a
         textureless corridor until its end wall comes into range). ``step``: the step
-        ``(pose (3,), information (3, 3))`` into frame ``k`` (None for the first frame).
+        ``(pose (3,), covariance (3, 3))`` into frame ``k`` (None for the first frame).
         Each prior waits for the ``2 motion_prior_window`` frames after it, whose steps
         its acceleration is fitted to (:meth:`_prior_accel`), and for its gap to end, or
         for the solve (:meth:`flush`)."""
@@ -419,7 +421,7 @@ class _GraphBuilder:
         self._mp_weak.append(weak)
         # every step's translation and stated noise: a guessed one's noise keeps it out of the fit
         self._mp_steps.append(None if step is None else
-                              (np.asarray(step[0][:2], float), np.diag(np.linalg.inv(step[1]))[:2].copy()))
+                              (np.asarray(step[0][:2], float), np.diag(step[1])[:2].copy()))
         w = self.cfg.motion_prior_window
         if weak:
             self._mp_last_weak = k
@@ -504,10 +506,11 @@ class _GraphBuilder:
         out = np.zeros(2)
         last = len(self._mp_steps) - 1
         for ax in range(2):
-            b = next((i for i in range(k - 1, 0, -1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
-            a = next((i for i in range(k, last + 1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
-            if a is not None and b is not None and a - b > 1:
-                (tb, vb, _, _), (ta, va, _, _) = self._velocity(b), self._velocity(a)
+            b = next(((i, s) for i in range(k - 1, 0, -1) if (s := self._velocity(i)) is not None and s[3][ax]),
+                     None)
+            a = next(((i, s) for i in range(k, last + 1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
+            if a is not None and b is not None and a[0] - b[0] > 1:
+                (tb, vb, _, _), (ta, va, _, _) = b[1], a[1]
                 out[ax] = abs(va[ax] - vb[ax]) / (ta - tb)
         return out
 
