@@ -67,7 +67,7 @@ class BackendConfig:
     #: one measured step before it: 69 mm). 0: only the steps next to the gap.
     motion_prior_window: int = 10
     #: Where the prior ties measured steps, its acceleration is what those steps show: the
-    #: RMS change of their base_link velocity less their stated noise, per axis, between
+    #: RMS change of their base_link velocity, their stated noise kept in, per axis, between
     #: this floor (m/s^2) and ``motion_prior_accel``. A robot cruising at constant speed
     #: then carries its speed over a gap; one speeding up or braking keeps the looser prior.
     motion_prior_min_accel: float = 0.05

@@ -9,6 +9,7 @@ solvers see identical graphs.
 """
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections import Counter
@@ -224,11 +225,12 @@ class _GraphBuilder:
         self._closure_floor = np.array([config.closure_min_sigma_xy, config.closure_min_sigma_xy,
                                         math.radians(config.closure_min_sigma_theta_deg)]) ** 2
         #: the motion prior's memory, per frame: stamp (s), whether its step left the
-        #: translation unmeasured, and the step's base_link translation (2,) with its stated
-        #: variances (2,) (None for the first frame)
+        #: translation unmeasured, and its step's velocity (:meth:`_velocity`); per axis, the
+        #: frames whose step was fine, in order (the gaps' edges, :meth:`_gap_accel`)
         self._mp_stamps: list[float] = []
         self._mp_weak: list[bool] = []
-        self._mp_steps: list[tuple[np.ndarray, np.ndarray] | None] = []
+        self._mp_vel: list[tuple | None] = []
+        self._mp_fine: tuple[list[int], list[int]] = ([], [])
         self._mp_upto = 1               # the last frame whose velocity the prior ties
         self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
         self._mp_last_weak = -(1 << 30)  # the last frame whose translation was unmeasured
@@ -419,9 +421,12 @@ class _GraphBuilder:
         weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL))
         self._mp_stamps.append(float(result.stamp))
         self._mp_weak.append(weak)
-        # every step's translation and stated noise: a guessed one's noise keeps it out of the fit
-        self._mp_steps.append(None if step is None else
-                              (np.asarray(step[0][:2], float), np.diag(step[1])[:2].copy()))
+        # every step's velocity and stated noise: a guessed one's noise keeps it out of the fit
+        vel = self._velocity(step)
+        self._mp_vel.append(vel)
+        for ax in range(2):
+            if vel is not None and vel[3][ax]:
+                self._mp_fine[ax].append(k)
         w = self.cfg.motion_prior_window
         if weak:
             self._mp_last_weak = k
@@ -461,15 +466,17 @@ class _GraphBuilder:
             if self.cfg.robust_kernel != "none":
                 self.robust.append(("motion_prior", f))
 
-    def _velocity(self, i: int):
-        """Step ``i`` as ``(t, v (2,), n (2,), fine (2,))``: its midpoint (s), base_link
-        velocity (m/s), the velocity's stated variance and whether it was measured finely
-        enough to show an acceleration below ``motion_prior_accel`` from one step to the next
-        (a guessed step never is); None for the first frame and repeated stamps."""
+    def _velocity(self, step):
+        """The newest frame's ``step`` ``(pose (3,), covariance (3, 3))`` (None for the first
+        frame) as ``(t, v (2,), n (2,), fine (2,))``: its midpoint (s), base_link velocity
+        (m/s), the velocity's stated variance and whether it was measured finely enough to
+        show an acceleration below ``motion_prior_accel`` from one step to the next (a
+        guessed step never is); None for the first frame and repeated stamps."""
+        i = len(self._mp_stamps) - 1
         dt = self._mp_stamps[i] - self._mp_stamps[i - 1] if i >= 1 else 0.0
-        if self._mp_steps[i] is None or not dt > 0:
+        if step is None or not dt > 0:
             return None
-        s, var = self._mp_steps[i]
+        s, var = np.asarray(step[0][:2], float), np.diag(step[1])[:2].copy()
         n = var / dt ** 2
         # two such steps' velocity change has less noise than the cap's change, (cap dt)^2
         fine = n < 0.5 * (self.cfg.motion_prior_accel * dt) ** 2
@@ -486,7 +493,7 @@ class _GraphBuilder:
         braking base cruising."""
         c = self.cfg
         h = 2 * c.motion_prior_window
-        steps = [self._velocity(i) for i in range(max(1, k - h), min(k + h, len(self._mp_steps) - 1) + 1)]
+        steps = self._mp_vel[max(1, k - h):min(k + h, len(self._mp_vel) - 1) + 1]
         a = np.full(2, c.motion_prior_accel)
         for ax in range(2):
             fine = [(t, v[ax], n[ax]) for t, v, n, f in filter(None, steps) if f[ax]]
@@ -504,13 +511,11 @@ class _GraphBuilder:
         acceleration between those two (the gap's steps must span the change of speed
         measured across it); else 0."""
         out = np.zeros(2)
-        last = len(self._mp_steps) - 1
         for ax in range(2):
-            b = next(((i, s) for i in range(k - 1, 0, -1) if (s := self._velocity(i)) is not None and s[3][ax]),
-                     None)
-            a = next(((i, s) for i in range(k, last + 1) if (s := self._velocity(i)) is not None and s[3][ax]), None)
-            if a is not None and b is not None and a[0] - b[0] > 1:
-                (tb, vb, _, _), (ta, va, _, _) = b[1], a[1]
+            fine = self._mp_fine[ax]
+            j = bisect.bisect_left(fine, k)  # fine[j - 1] < k <= fine[j]
+            if 0 < j < len(fine) and fine[j] - fine[j - 1] > 1:
+                (tb, vb, _, _), (ta, va, _, _) = self._mp_vel[fine[j - 1]], self._mp_vel[fine[j]]
                 out[ax] = abs(va[ax] - vb[ax]) / (ta - tb)
         return out
 
