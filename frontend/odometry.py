@@ -19,9 +19,11 @@ the previous frame is then estimated by
    from a few agreeing 3-D matches, and along the direction the walls leave open from
    the two depth images aligned along it (frontend/depthalign.py: box sides, door
    frames, end walls); only what none of them fixes stays at the bridge's guess and
-   sigma; else
+   sigma. Without a Manhattan or 2-point yaw, the yaw may come from the depth images
+   aligned about it (pillars and boxes of a textureless hall; ``depth_yaw``), and a step
+   whose translation alone was measured is partial at the guessed yaw; else
 4. a bridge, ``STATUS_BRIDGED``: constant velocity (or zero motion) with a large
-   covariance -- never silently.
+   covariance, when nothing of the step was measured -- never silently.
 
 Steps are reported as base_link SE(2) increments with an information matrix in
 gtsam.Pose2 tangent order ``[x, y, theta]``, propagated from the estimator's covariance
@@ -39,7 +41,8 @@ import numpy as np
 from planar_vo.core import geometry
 from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
-from planar_vo.frontend.depthalign import DepthAlignOptions, align_along, informative, sample_points
+from planar_vo.frontend.depthalign import (DepthAlignOptions, align_along, align_yaw, coarse_yaw_along, informative,
+                                           informative_yaw, sample_points)
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
@@ -885,7 +888,10 @@ class PlanarOdometry:
         at its own sigma, and the translation along the normals of walls seen in both
         frames (``d2 - d1 = n2 . t``), from a few 3-D matches and the depth alignment
         (:meth:`_partial_translation`); what none fixes stays at the bridge's guess
-        (constant velocity or zero) and sigma. Without one, the whole step is bridged."""
+        (constant velocity or zero) and sigma. Without one, the yaw may come from the depth
+        images (:meth:`_depth_yaw`); failing that, a step whose translation something
+        measured is partial at the guessed yaw and its sigma, and only a step of which
+        nothing was measured is bridged."""
         c = self.config.odometry
         if c.bridge == "constant_velocity" and self._last_motion is not None:
             yaw, t = self._last_motion
@@ -895,14 +901,24 @@ class PlanarOdometry:
             how = "zero"
         self._since_t += 1
         sb, s_theta = self._bridge_sigmas(how == "zero")
-        if mf_yaw is None:
-            return self._bridge(yaw, t, sb, s_theta, how, mount_se2, info)
-        self._since_yaw = 0
-        yaw, sigma_yaw = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg))
+        turned = mf_yaw is not None  # by walls or corners
+        if not turned:
+            # no wall and no 2-point yaw: the depth images may still turn (pillars, boxes)
+            mf_yaw = self._depth_yaw(yaw, t, sb, s_theta, mount_se2, info)
+        if mf_yaw is not None:
+            self._since_yaw = 0
+            yaw, sigma_yaw, yaw_ff = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg)), mf_yaw[2]
+        else:
+            sigma_yaw, yaw_ff = s_theta, yaw
         prior, prior_cov = np.array([t[0], t[2]]), sb
         if c.lateral_slip > 0:
             prior, prior_cov = self._wheeled_prior(yaw, prior, sb, mount_se2)
-        t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, mf_yaw[2], prior, prior_cov, pts, info)
+        t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, yaw_ff, prior, prior_cov, pts, info,
+                                                        wide=not turned)
+        if mf_yaw is None and not any(counts.values()):
+            return self._bridge(yaw, t, sb, s_theta, how, mount_se2, info)
+        if mf_yaw is None:
+            self._since_yaw += 1  # the yaw is still the guess
         t = np.array([t_xz[0], 0.0, t_xz[1]])
         cov = np.zeros((3, 3))
         cov[0, 0] = sigma_yaw ** 2
@@ -910,33 +926,42 @@ class PlanarOdometry:
         # a side wall measures the sideways motion directly, and the guess states its own
         cov[1:, 1:] = cov_t + np.diag([0.0, c.min_sigma_xy ** 2])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
-        info.partial = {"prior": how, **counts, "measured": counts["walls"] + counts["dense"] >= 2}
+        # the depth alignment measures along the guess's long axis; on a wheeled base the
+        # other is the chord of the turn, so it measures the whole translation
+        measured = counts["walls"] + counts["dense"] >= 2 or (counts["dense"] > 0 and c.lateral_slip > 0)
+        info.partial = {"prior": how, **counts, "measured": measured, "yaw": "measured" if mf_yaw else "guess"}
         self._kf_guessed = ((float(yaw), np.asarray(t, float)), cov)
-        # what of the step's information is the guess (its prior on the translation): the
-        # back-end's motion prior states the same constant velocity and takes its place
+        # what of the step's information is the guess (its prior on the translation, and the
+        # yaw when none was measured): the back-end's motion prior states the same constant
+        # velocity and takes its place
         Ji = np.linalg.inv(lev_to_base_jacobian(yaw, t, mount_se2))
         guess = np.zeros((3, 3))
         guess[1:, 1:] = np.linalg.inv(_prior_cov(prior_cov))
-        self._partial_guess(float(mf_yaw[2]), t, cov, how, info.partial["measured"])
+        if mf_yaw is None:
+            guess[0, 0] = 1.0 / sigma_yaw ** 2
+        self._partial_guess(float(yaw_ff), t, cov, how, measured)
         return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"],
                      guess_information=Ji.T @ guess @ Ji), (yaw, t, sigma_yaw ** 2))
 
     def _partial_translation(self, walls1, walls2, yaw: float, yaw_ff: float, prior: np.ndarray, prior_cov, pts,
-                             info) -> tuple[np.ndarray, np.ndarray, dict]:
+                             info, wide: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
         """A partial step's levelled ``(t_x, t_z)`` (2,), its (2, 2) covariance and the
         constraint counts: walls seen in both frames at the step's ``yaw``, the 1-point
         translation of a few 3-D matches and the depth alignment at the frame-to-frame
-        ``yaw_ff``, over the guess ``prior`` with ``prior_cov``."""
+        ``yaw_ff``, over the guess ``prior`` with ``prior_cov``. ``wide``: the yaw is not
+        one walls or corners measured (:meth:`_dense_translation`); then no 3-D matches."""
         c = self.config.odometry
         walls = wall_constraints(walls1, walls2, yaw, prior, c, prior_cov)
         t_xz, cov_t = translation_from_walls(walls, prior, prior_cov)
-        points, n_points = self._point_translation(pts, yaw_ff, (t_xz, cov_t), info)
+        # at a guessed yaw a point's translation is off sideways by its depth times the yaw's
+        # error, which its covariance does not state: only walls and the alignment measure
+        points, n_points = self._point_translation(pts, yaw_ff, (t_xz, cov_t), info) if not wide else ([], 0)
         if points:
             t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
         # walls of two directions measured the whole translation already; a few 3-D matches
         # did, but more coarsely (on the boxed textureless corridor of tests/test_depthalign.py,
         # before the contrast test: up to 5.1 mm against the alignment's 2.1 mm): both are used
-        dense = [] if len(walls) >= 2 else self._dense_translation(yaw_ff, t_xz, cov_t, info)
+        dense = [] if len(walls) >= 2 else self._dense_translation(yaw_ff, t_xz, cov_t, info, wide)
         if dense:
             t_xz, cov_t = translation_from_walls(walls + points + dense, prior, prior_cov)
         return t_xz, cov_t, {"walls": len(walls), "points": n_points, "dense": len(dense)}
@@ -1031,12 +1056,16 @@ class PlanarOdometry:
         return [(np.array([1.0, 0.0]), float(motion.t[0]), float(cov[1, 1])),
                 (np.array([0.0, 1.0]), float(motion.t[2]), float(cov[2, 2]))], int(est.num_inliers)
 
-    def _dense_translation(self, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, info) -> list:
+    def _dense_translation(self, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, info, wide: bool = False) -> list:
         """``[(u (2,), delta, var)]`` (as :func:`wall_constraints`): the translation along the
         direction ``u`` the walls left to the guess (the larger axis of ``cov_t``), measured
         by aligning the previous frame's depth with this one's at the frame-to-frame ``yaw``
         (frontend/depthalign.py), or ``[]``. ``t_xz`` (2,), ``cov_t`` (2, 2): the step's
-        levelled translation so far."""
+        levelled translation so far. ``wide``: also try the wider window where the narrow
+        one finds no bowl -- only for a step neither walls nor corners turned, which would
+        otherwise be bridged: the wider window has more room for a shallow, biased minimum
+        (on two low-texture 30 Hz tuning halls, used for every partial step, it measured 94
+        steps 1 mm short each and their smoothed drift went 0.50 -> 1.54 and 1.25 -> 1.83 %)."""
         c = self.config.odometry
         if not c.depth_align or self._prev is None or self._prev.depth is None or self._depth is None:
             return []
@@ -1047,12 +1076,66 @@ class PlanarOdometry:
         P1 = P1[informative(normals, u, opt)]
         half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
         depth, R = self._depth
-        a = align_along(P1, depth, self.intrinsics, R, yaw, t_xz, u, half, opt)
+        a = align_along(P1, depth, self.intrinsics, R, yaw, t_xz, u, half, opt, wide=wide)
         if a is None:
             info.partial_dense = {"points": len(P1)}  # tried: no clear minimum
             return []
         info.partial_dense = {"s_m": a.s, "sigma_m": math.sqrt(a.var), "points": a.n_points}
         return [(u, float(u @ t_xz) + a.s, a.var)]
+
+    def _depth_yaw(self, yaw: float, t: np.ndarray, sb: float, s_theta: float, mount_se2, info):
+        """``(yaw, sigma, yaw)`` (rad) of a step no wall and no corner turned, measured by
+        aligning the previous frame's depth with this one's about the yaw
+        (:func:`~planar_vo.frontend.depthalign.align_yaw`), or None.
+
+        The guess's yaw and distance along may both be off by more than either 1-D search
+        can take (a robot starting from rest is guessed at zero), so a coarse grid over
+        both comes first (:func:`~planar_vo.frontend.depthalign.coarse_yaw_along`): +-4
+        sigmas of the guess ``yaw`` clipped to [``depth_yaw_min_range_deg``,
+        ``depth_yaw_max_range_deg``], and the depth alignment's range along the guess's
+        long axis. On a wheeled base the translation follows each candidate yaw along the
+        chord (:meth:`_wheeled_prior`): a camera ahead of base_link moves sideways with the
+        turn, and a sideways error ``e`` at range ``r`` reads as a yaw error ``e / r``."""
+        c = self.config.odometry
+        if not (c.depth_align and c.depth_yaw) or self._prev is None or self._prev.depth is None or self._depth is None:
+            return None
+        opt = self._align_opt
+        P1, normals = sample_points(self._prev.depth, self.intrinsics, self._prev.R_lev_cam, opt)
+        half = min(max(4.0 * s_theta, math.radians(c.depth_yaw_min_range_deg)), math.radians(c.depth_yaw_max_range_deg))
+        t_xz = np.array([t[0], t[2]], dtype=float)
+        if c.lateral_slip > 0:
+            prior, cov = self._wheeled_prior(yaw, t_xz, sb, mount_se2)
+
+            def chord(yaws: np.ndarray) -> np.ndarray:
+                return np.array([self._wheeled_prior(float(y), t_xz, sb, mount_se2)[0] for y in yaws])
+        else:
+            prior, cov = t_xz, np.eye(2) * sb * sb
+
+            def chord(yaws: np.ndarray) -> np.ndarray:
+                return np.tile(t_xz, (len(yaws), 1))
+        lam, vec = np.linalg.eigh(cov)
+        u = vec[:, -1]
+        half_s = min(max(4.0 * math.sqrt(max(float(lam[-1]), 0.0)), c.depth_align_min_range_m),
+                     c.depth_align_max_range_m)
+        keep = informative_yaw(P1, normals, opt) | informative(normals, u, opt)
+        depth, R = self._depth
+        start = coarse_yaw_along(P1[keep], depth, self.intrinsics, R, yaw, chord, u, half, half_s, opt)
+        if start is None:
+            info.depth_yaw = {"points": int(keep.sum())}
+            return None
+        yaw0, s0 = yaw + start[0], start[1]
+
+        def t_of(yaws: np.ndarray) -> np.ndarray:
+            return chord(yaws) + s0 * u
+        step = 2.0 * half / 12
+        P_yaw = P1[informative_yaw(P1, normals, opt)]
+        a = align_yaw(P_yaw, depth, self.intrinsics, R, yaw0, t_of, 2.0 * step, opt)
+        if a is None:
+            info.depth_yaw = {"points": len(P_yaw)}  # tried: no clear minimum
+            return None
+        info.depth_yaw = {"yaw_deg": math.degrees(yaw0 + a.s), "sigma_deg": math.degrees(math.sqrt(a.var)),
+                          "points": a.n_points}
+        return yaw0 + a.s, math.sqrt(a.var), yaw0 + a.s
 
     def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
         """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.

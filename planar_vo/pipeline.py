@@ -268,12 +268,16 @@ class _FrameLoop:
     partial: bool = False
     stop_reason: str | None = None
     memory: list = field(default_factory=list)  # (frames so far, resident MB) every MEMORY_EVERY frames
+    yaw_guessed: int = 0  # partial steps whose yaw is the guess's
 
     def add(self, frame, result) -> None:
         self.stamps.append(frame.stamp)
         if len(self.stamps) % MEMORY_EVERY == 0:
             self.memory.append([len(self.stamps), round(_resident_mb(), 1)])
         self.statuses[result.step.status if result.step is not None else "first"] += 1
+        part = result.diagnostics.partial if result.diagnostics is not None else None
+        if part is not None and part.get("yaw") == "guess":
+            self.yaw_guessed += 1  # a partial step whose translation alone was measured
         self.frame_infos.append(frame_summary(result))
         if result.step is not None:
             self.steps.append(_step_row(result))
@@ -358,7 +362,7 @@ def _report(log_path, log_summary, stats, loop: _FrameLoop, odometry, graph, con
         "partial": loop.partial,
         "stop_reason": loop.stop_reason,
         "frames": _frame_counts(loop, stats),
-        "motion": motion_with_wheel_odometry(motion_report(loop.statuses), wheel_section),
+        "motion": motion_with_wheel_odometry(motion_report(loop.statuses, loop.yaw_guessed), wheel_section),
         "mount": _mount_report(odometry.mount),
         "planarity": planarity_report(loop.frame_infos, levelled=is_levelled(odometry.levelling, loop.frame_infos)),
         "backend": _jsonable(getattr(graph, "stats", {})),
@@ -398,13 +402,14 @@ MIN_MEASURED_FRACTION = 0.5
 GOOD_MEASURED_FRACTION = 0.9
 
 
-def motion_report(statuses: Counter) -> dict:
+def motion_report(statuses: Counter, yaw_guessed: int = 0) -> dict:
     """How much of the motion was measured: steps whose translation came from an
-    estimator (direction-plus-point, 2-point), steps with only the yaw (partial), steps
-    with neither (bridged), and a verdict a user can act on."""
+    estimator (direction-plus-point, 2-point), steps with part of it (partial:
+    ``yaw_guessed`` of them measured some of the translation but not the yaw), steps with
+    neither (bridged), and a verdict a user can act on."""
     n = sum(v for k, v in statuses.items() if k != "first")
     full = statuses.get("dpp", 0) + statuses.get("2pt", 0)
-    yaw = full + statuses.get("partial", 0)
+    yaw = full + statuses.get("partial", 0) - yaw_guessed
     rep = {"steps": n, "translation_measured": full, "yaw_measured": yaw}
     frac = full / n if n else 1.0
     if frac >= GOOD_MEASURED_FRACTION:

@@ -161,6 +161,10 @@ def test_untextured_hall_is_bridged_not_guessed():
             # a constant-velocity guess whose sigma grows while nothing is measured
             assert r.diagnostics.bridge in ("constant_velocity", "zero") and r.step.inliers == 0
             zb.append(e / np.sqrt(np.diag(cov)))
+        elif r.step.status == STATUS_PARTIAL and r.diagnostics.partial["yaw"] == "guess":
+            # the depth alignment measured the translation, the yaw is the guess's
+            assert r.diagnostics.partial["dense"] + r.diagnostics.partial["walls"] >= 1
+            zb.append(e / np.sqrt(np.diag(cov)))
         elif r.step.status == STATUS_PARTIAL:
             # the yaw is measured (Manhattan or 2-point, at most the sigma a whole step may
             # state, odometry.max_sigma_theta_deg); the translation only where walls pair up
@@ -170,13 +174,15 @@ def test_untextured_hall_is_bridged_not_guessed():
         else:
             assert np.linalg.norm(e[:2]) < 0.03 and abs(math.degrees(e[2])) < 0.5, (f1.rgbd.index, e)
     # measured: 76 partial, 9 bridged (a wheeled base's 2-point yaw makes most former
-    # bridges partial steps)
-    assert len(z) >= 10 and len(zb) >= 5
+    # bridges partial steps); since the depth images measure the yaw or the translation of
+    # steps nothing else did (tests/test_depth_yaw.py), 83 partial at a measured yaw, 1 at
+    # the guessed yaw, 1 bridged
+    assert len(z) >= 10 and len(z) + len(zb) == len(guessed) and len(zb) <= 5
     # measured: 0.05 deg RMS (the 2-point yaw of a wheeled base's step without a scale, or a
     # wall's); a bridge's guess errs by the turn-rate change, up to 0.5 deg a step here
     assert math.sqrt(np.mean(np.square(partial_yaw))) < 0.1
     # partial and bridged steps agree with their sigmas, component by component
-    for zz in (z, zb):
+    for zz in (z, zb) if len(zb) >= 2 else (z,):
         assert np.all(np.sqrt(np.mean(np.square(zz), axis=0)) < 2.0), np.sqrt(np.mean(np.square(zz), axis=0))
 
 
