@@ -305,15 +305,14 @@ class OdometryConfig:
     depth_align_max_range_m: float = 0.2
     #: A step whose yaw neither walls nor the 2-point method measure (a textureless hall,
     #: walls out of range) takes its yaw from the depth images, aligned about the yaw
-    #: (pillars, boxes; frontend/depthalign.py ``coarse_yaw_along``, ``align_yaw``) over +-4
-    #: guess sigmas clipped to [min_range, max_range]. Both are 3 deg: a robot entering a
-    #: turn changes its yaw rate faster than the guess's 30 deg/s^2 allows (entering the
-    #: U-turn of a textureless hall, hall_s4502, the guess was 1.6 deg a step off for 12
-    #: steps, outside a 0.5 deg range). Without a yaw, a step whose translation was measured
-    #: is partial at the guessed yaw; else it is bridged.
+    #: (pillars, boxes; frontend/depthalign.py ``coarse_yaw_along``, ``align_yaw``) over
+    #: +-``depth_yaw_range_deg`` of the guess, not a multiple of the guess's sigma: a robot
+    #: entering a turn changes its yaw rate faster than the guess's 30 deg/s^2 allows
+    #: (entering the U-turn of a textureless hall, hall_s4502, the guess was 1.6 deg a step
+    #: off for 12 steps, outside a 0.5 deg range). Without a yaw, a step whose translation
+    #: was measured is partial at the guessed yaw; else it is bridged.
     depth_yaw: bool = True
-    depth_yaw_min_range_deg: float = 3.0
-    depth_yaw_max_range_deg: float = 3.0
+    depth_yaw_range_deg: float = 3.0
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1
@@ -376,13 +375,10 @@ class OdometryConfig:
                   two_point_shared_px=self.two_point_shared_px,
                   keyframe_max_baseline_m=self.keyframe_max_baseline_m, keyframe_max_yaw_deg=self.keyframe_max_yaw_deg,
                   keyframe_gate_chi2=self.keyframe_gate_chi2, depth_align_min_range_m=self.depth_align_min_range_m,
-                  depth_yaw_min_range_deg=self.depth_yaw_min_range_deg)
+                  depth_yaw_range_deg=self.depth_yaw_range_deg)
         if not self.depth_align_max_range_m >= self.depth_align_min_range_m:
             raise ConfigError(f"config key 'odometry.depth_align_max_range_m' must be >= depth_align_min_range_m "
                               f"({self.depth_align_min_range_m!r}), got {self.depth_align_max_range_m!r}")
-        if not self.depth_yaw_max_range_deg >= self.depth_yaw_min_range_deg:
-            raise ConfigError(f"config key 'odometry.depth_yaw_max_range_deg' must be >= depth_yaw_min_range_deg "
-                              f"({self.depth_yaw_min_range_deg!r}), got {self.depth_yaw_max_range_deg!r}")
         if not 0.0 < self.keyframe_min_fraction <= 1.0:
             raise ConfigError(f"config key 'odometry.keyframe_min_fraction' must be in (0, 1], "
                               f"got {self.keyframe_min_fraction!r}")

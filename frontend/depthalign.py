@@ -230,7 +230,8 @@ def coarse_yaw_along(P1: np.ndarray, depth2: np.ndarray, K: CameraIntrinsics, R_
     """The grid cell ``(dyaw (rad), s (m))`` whose step ``X_lev2 = R_y(yaw0 + dyaw) X_lev1 +
     t_of(yaw0 + dyaw) + s u`` best moves ``P1`` (N, 3) onto ``depth2``, over ``n_yaw`` x
     ``n_s`` samples of ``+-half_yaw`` x ``+-half_s`` with about ``max_points`` of the
-    points; None when too few points are seen at every cell. ``t_of``: candidate yaws (S,) -> levelled translations (S, 2); ``u`` (2,).
+    points; None when too few points are seen at every cell. ``t_of``: candidate yaws
+    (S,) -> levelled translations (S, 2); ``u`` (2,).
 
     A start for :func:`align_yaw` and :func:`align_along` when both the yaw and the
     distance along are guesses: each 1-D search needs the other coordinate within its
@@ -247,7 +248,9 @@ def coarse_yaw_along(P1: np.ndarray, depth2: np.ndarray, K: CameraIntrinsics, R_
     ds = np.linspace(-half_s, half_s, n_s)
     Y, S = np.meshgrid(dy, ds, indexing="ij")
     yaws = float(yaw0) + Y.ravel()
-    ts = t_of(yaws) + S.ravel()[:, None] * np.asarray(u, dtype=float)[None, :]
+    # t_of per distinct yaw only (a wheeled base's chord is a small solve per yaw); the
+    # grid runs yaw-major, each yaw n_s times in a row
+    ts = np.repeat(t_of(float(yaw0) + dy), n_s, axis=0) + S.ravel()[:, None] * np.asarray(u, dtype=float)[None, :]
     c, n = _costs(P1, depth2, K, R_lev_cam2, yaws, ts, opt)
     if n * k < opt.min_points:  # the sample stands for k times as many points
         return None

@@ -904,7 +904,7 @@ class PlanarOdometry:
         turned = mf_yaw is not None  # by walls or corners
         if not turned:
             # no wall and no 2-point yaw: the depth images may still turn (pillars, boxes)
-            mf_yaw = self._depth_yaw(yaw, t, sb, s_theta, mount_se2, info)
+            mf_yaw = self._depth_yaw(yaw, t, sb, mount_se2, info)
         if mf_yaw is not None:
             self._since_yaw = 0
             yaw, sigma_yaw, yaw_ff = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg)), mf_yaw[2]
@@ -1083,17 +1083,16 @@ class PlanarOdometry:
         info.partial_dense = {"s_m": a.s, "sigma_m": math.sqrt(a.var), "points": a.n_points}
         return [(u, float(u @ t_xz) + a.s, a.var)]
 
-    def _depth_yaw(self, yaw: float, t: np.ndarray, sb: float, s_theta: float, mount_se2, info):
+    def _depth_yaw(self, yaw: float, t: np.ndarray, sb: float, mount_se2, info):
         """``(yaw, sigma, yaw)`` (rad) of a step no wall and no corner turned, measured by
         aligning the previous frame's depth with this one's about the yaw
         (:func:`~planar_vo.frontend.depthalign.align_yaw`), or None.
 
         The guess's yaw and distance along may both be off by more than either 1-D search
         can take (a robot starting from rest is guessed at zero), so a coarse grid over
-        both comes first (:func:`~planar_vo.frontend.depthalign.coarse_yaw_along`): +-4
-        sigmas of the guess ``yaw`` clipped to [``depth_yaw_min_range_deg``,
-        ``depth_yaw_max_range_deg``], and the depth alignment's range along the guess's
-        long axis. On a wheeled base the translation follows each candidate yaw along the
+        both comes first (:func:`~planar_vo.frontend.depthalign.coarse_yaw_along`):
+        +-``depth_yaw_range_deg`` about the guess ``yaw``, and the depth alignment's range
+        along the guess's long axis (of sigma ``sb``). On a wheeled base the translation follows each candidate yaw along the
         chord (:meth:`_wheeled_prior`): a camera ahead of base_link moves sideways with the
         turn, and a sideways error ``e`` at range ``r`` reads as a yaw error ``e / r``."""
         c = self.config.odometry
@@ -1101,15 +1100,15 @@ class PlanarOdometry:
             return None
         opt = self._align_opt
         P1, normals = sample_points(self._prev.depth, self.intrinsics, self._prev.R_lev_cam, opt)
-        half = min(max(4.0 * s_theta, math.radians(c.depth_yaw_min_range_deg)), math.radians(c.depth_yaw_max_range_deg))
+        half = math.radians(c.depth_yaw_range_deg)
         t_xz = np.array([t[0], t[2]], dtype=float)
         if c.lateral_slip > 0:
-            prior, cov = self._wheeled_prior(yaw, t_xz, sb, mount_se2)
+            cov = self._wheeled_prior(yaw, t_xz, sb, mount_se2)[1]
 
             def chord(yaws: np.ndarray) -> np.ndarray:
                 return np.array([self._wheeled_prior(float(y), t_xz, sb, mount_se2)[0] for y in yaws])
         else:
-            prior, cov = t_xz, np.eye(2) * sb * sb
+            cov = np.eye(2) * sb * sb
 
             def chord(yaws: np.ndarray) -> np.ndarray:
                 return np.tile(t_xz, (len(yaws), 1))
