@@ -82,6 +82,18 @@ class BackendConfig:
     #: 5.72 %, 3.08 -> 2.63 %) and hurt a low-texture 30 Hz hall (0.95 -> 2.97 %), whose
     #: guesses average five measured steps where the prior ties a gap to the one next to it.
     motion_prior_replaces_guess: bool = False
+    #: True: a gap at the start of a run (no step's forward speed measured yet) starts from
+    #: rest: the prior expects the base to speed up at ``motion_prior_accel`` from the first
+    #: frame to the speed measured after the gap (the median of the first three measured
+    #: steps), then hold it. False: the speed after the gap is carried back to the first
+    #: frame, as though the base had been moving when the log began; a base that started
+    #: from rest is then put about v^2 / 2a too far. Off by default: on the held-out logs
+    #: with a start gap of 8 or more steps it cut the error where the gap ends on five of six
+    #: (two_frames_s4404 28.8 -> 10.1 cm), but the end-point drift went 3 better / 3 worse
+    #: (hall_s4502 3.69 -> 6.85 %: its start overshoot had cancelled the hall's forward
+    #: shortfall), and a base speeding up faster than 0.5 m/s^2 (a dev hall at 0.8) is put
+    #: short (docs/bench/start_at_rest_session24.md).
+    motion_prior_start_at_rest: bool = False
 
     # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)
     #: Use the log's wheel odometry when it has one (``--no-wheel-odom`` turns it off).

@@ -185,21 +185,22 @@ def _pose_vec(values, key) -> np.ndarray:
     return np.array([p.x(), p.y(), p.theta()])
 
 
-def _constant_velocity_error(keys, dt1, dt2, this, values, H):
+def _constant_velocity_error(keys, dt1, dt2, expected, this, values, H):
     a, b, c = (_pose_vec(values, k) for k in keys)
     if H is None:
-        return constant_velocity_residual(a, b, c, dt1, dt2)
+        return constant_velocity_residual(a, b, c, dt1, dt2) - expected
     r, Hs = constant_velocity_residual(a, b, c, dt1, dt2, jacobians=True)
     for i, h in enumerate(Hs):
         H[i] = h
-    return r
+    return r - expected
 
 
 def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma, sigma_yaw: float, *,
-                             kernel: str = "none", parameter: float = 3.0):
+                             kernel: str = "none", parameter: float = 3.0, expected=None):
     """Motion prior on ``X(k-2), X(k-1), X(k)``: the base_link velocity of step k equals that
     of step k-1 within ``sigma`` (m/s; a scalar, or (2,) for base_link x and y) and
-    ``sigma_yaw`` (rad/s) (:func:`constant_velocity_residual`). A ``gtsam.CustomFactor``
+    ``sigma_yaw`` (rad/s) (:func:`constant_velocity_residual`); ``expected``: (3,) the
+    change it is expected to have instead of none (a base speeding up from rest). A ``gtsam.CustomFactor``
     (Python callback): added only around steps whose motion vision did not measure, where it
     carries the velocity measured before and after a gap. ``kernel``, ``parameter``: a
     robust kernel (:func:`robust_noise`), so that a base braking where its steps were
@@ -207,7 +208,8 @@ def constant_velocity_factor(k: int, dt1: float, dt2: float, sigma, sigma_yaw: f
     keys = [X(k - 2), X(k - 1), X(k)]
     noise = robust_noise(gtsam.noiseModel.Diagonal.Sigmas(np.array([*np.broadcast_to(np.asarray(sigma, float), 2),
                                                                      sigma_yaw])), kernel, parameter)
-    return gtsam.CustomFactor(noise, keys, partial(_constant_velocity_error, keys, float(dt1), float(dt2)))
+    expected = np.zeros(3) if expected is None else np.asarray(expected, float).reshape(3)
+    return gtsam.CustomFactor(noise, keys, partial(_constant_velocity_error, keys, float(dt1), float(dt2), expected))
 
 
 # --- wall landmarks (a vertical wall seen from many poses) ----------------------------------

@@ -231,6 +231,7 @@ class _GraphBuilder:
         self._mp_weak: list[bool] = []
         self._mp_vel: list[tuple | None] = []
         self._mp_fine: tuple[list[int], list[int]] = ([], [])
+        self._mp_measured: list[int] = []  # the first three steps whose forward speed was measured
         self._mp_upto = 1               # the last frame whose velocity the prior ties
         self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
         self._mp_last_weak = -(1 << 30)  # the last frame whose translation was unmeasured
@@ -427,6 +428,8 @@ class _GraphBuilder:
         for ax in range(2):
             if vel is not None and vel[3][ax]:
                 self._mp_fine[ax].append(k)
+        if len(self._mp_measured) < 3 and vel is not None and (not weak or math.sqrt(vel[2][0]) < 0.25 * abs(vel[1][0])):
+            self._mp_measured.append(k)  # the first steps whose forward speed was measured
         w = self.cfg.motion_prior_window
         if weak:
             self._mp_last_weak = k
@@ -460,11 +463,36 @@ class _GraphBuilder:
             # The velocity may change by what the acceleration does between the steps' midpoints.
             dt = 0.5 * (dt1 + dt2)
             f = constant_velocity_factor(j, dt1, dt2, accel * dt, self._yaw_accel * dt,
-                                         kernel=self.cfg.robust_kernel, parameter=self.cfg.step_robust_parameter)
+                                         kernel=self.cfg.robust_kernel, parameter=self.cfg.step_robust_parameter,
+                                         expected=self._start_ramp(j))
             graph.add(f)
             self.counts["motion_prior"] += 1
             if self.cfg.robust_kernel != "none":
                 self.robust.append(("motion_prior", f))
+
+    def _start_ramp(self, j: int) -> np.ndarray | None:
+        """(3,) the velocity change from step j-1 to step j when both lie before the first
+        step whose forward speed was measured and the base is taken to start at rest
+        (``motion_prior_start_at_rest``): it speeds up at ``motion_prior_accel`` from the
+        first frame until it reaches the speed measured after that gap (the median of the
+        first three such steps, as one may be an outlier), then holds it. None otherwise (no
+        change expected). Without it the prior carries the speed measured after a gap at the
+        start of a run back to the first frame, as though the base had been moving when the
+        log began: a base starting from rest is put too far by about v^2 / (2 a)."""
+        meas = self._mp_measured
+        if not (self.cfg.motion_prior_start_at_rest and meas and j <= meas[0]):
+            return None
+        v_after = np.median(np.array([self._mp_vel[i][1] for i in meas]), axis=0)
+        speed = float(np.linalg.norm(v_after))
+        if not speed > 0:
+            return None
+        t0, st = self._mp_stamps[0], self._mp_stamps
+
+        def ramp(i):  # speed of step i (at its midpoint) on the ramp from rest
+            return min(speed, self.cfg.motion_prior_accel * (0.5 * (st[i] + st[i - 1]) - t0))
+
+        dv = (ramp(j) - ramp(j - 1)) * v_after / speed
+        return np.array([dv[0], dv[1], 0.0])
 
     def _velocity(self, step):
         """The newest frame's ``step`` ``(pose (3,), covariance (3, 3))`` (None for the first
