@@ -88,7 +88,7 @@ class BackendConfig:
     #: steps), then hold it. False: the speed after the gap is carried back to the first
     #: frame, as though the base had been moving when the log began; a base that started
     #: from rest is then put about v^2 / 2a too far. Off by default: on the held-out logs
-    #: with a start gap of 8 or more steps it cut the error where the gap ends on five of six
+    #: with a start gap of 8 or more steps it cut the error where the gap ends on six of seven
     #: (two_frames_s4404 28.8 -> 10.1 cm), but the end-point drift went 3 better / 3 worse
     #: (hall_s4502 3.69 -> 6.85 %: its start overshoot had cancelled the hall's forward
     #: shortfall), and a base speeding up faster than 0.5 m/s^2 (a dev hall at 0.8) is put

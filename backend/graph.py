@@ -429,7 +429,8 @@ class _GraphBuilder:
             if vel is not None and vel[3][ax]:
                 self._mp_fine[ax].append(k)
         if len(self._mp_measured) < 3 and vel is not None and (not weak or math.sqrt(vel[2][0]) < 0.25 * abs(vel[1][0])):
-            self._mp_measured.append(k)  # the first steps whose forward speed was measured
+            # the first steps whose forward speed was measured: by an estimator, or stated within 25 %
+            self._mp_measured.append(k)
         w = self.cfg.motion_prior_window
         if weak:
             self._mp_last_weak = k
