@@ -180,9 +180,10 @@ def _costs(P1: np.ndarray, depth2: np.ndarray, K: CameraIntrinsics, R_lev_cam2: 
     # the points closer, each point's noise (about one sigma squared) would weigh more on
     # the longer steps, and the minimum would move short: 1.0 / 1.5 mm for a 5 cm step
     # towards a wall 3 / 3.5 m ahead (mean of 20 noise draws; 0.1 mm at zobs,
-    # tests/test_depthalign.py). At z, the depth-measured partial steps of six tuning and
-    # dev textureless halls came out 0.26-0.87 mm short a step (mean per log, 8-80 mm
-    # steps); at zobs, 0.25 mm short to 0.18 mm long (a textureless L: 0.01 short, 0.21 long).
+    # tests/test_depthalign.py). At z, the depth-measured partial steps of four textureless
+    # dev halls and two low-texture tuning halls came out 0.26-0.87 mm short a step (mean
+    # per log, 8-80 mm steps); at zobs, 0.25 mm short to 0.18 mm long (a textureless L:
+    # 0.01 short, 0.21 long).
     sig = opt.sigma_const + opt.sigma_quad * zobs * zobs
     r2 = ((zobs - z) / sig) ** 2
     return np.minimum(r2, opt.truncate ** 2).sum(1), int(keep.sum())
