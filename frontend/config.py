@@ -225,19 +225,11 @@ class OdometryConfig:
     #: joins or leaves) jumps by up to 1.4 deg while its step sigma, the walls' fit noise
     #: alone, stays at 0.04-0.16 deg. Over the 24 488 steps of tuning seeds 3500-3507 and
     #: 3700-3707 with both estimates, 70 direction-plus-point yaws erred beyond 0.3 deg
-    #: (39.7 deg in all); a 2 deg gate vetoed 1 of them.
+    #: (39.7 deg in all); a 2 deg gate vetoed 1 of them. Beyond the gate the 3-D matches
+    #: decide: the 2-point yaw vetoes when it explains them at a lower truncated cost, each
+    #: yaw with its best translation (``PlanarOdometry._vetoed``); otherwise the walls stand.
     dpp_veto_sigmas: float = 4.0
     dpp_veto_min_deg: float = 0.3
-    #: ... and a 2-point motion explaining at least this fraction of the 3-D matches the
-    #: direction-plus-point motion explains (same inlier test): otherwise the walls stand.
-    dpp_veto_support_ratio: float = 1.0
-    #: Below this disagreement the 2-point motion must also fit the 3-D matches at a lower
-    #: truncated cost (``score_depth_matches``): a 2-point yaw biased by a few tenths of a
-    #: degree ties on the count with a right Manhattan yaw. On seeds 3500-3507 (the vetoed
-    #: observation still becoming the reference, as it no longer does): 19 vetoes,
-    #: all right, taking 11.3 of those seeds' 13.1 deg (the count alone vetoed 20, the
-    #: test's 0.4 deg bias too).
-    dpp_veto_tie_deg: float = 2.0
     #: A track's carried reference jumped to another surface when the step's yaw and the
     #: frame-to-frame one differ beyond ``dpp_veto_sigmas`` and this many degrees (the
     #: correction they differ by is normally a few tenths of a degree, and its sigma is in
