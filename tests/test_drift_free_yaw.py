@@ -195,8 +195,8 @@ def test_a_wrong_manhattan_yaw_cannot_outscore_the_two_point_yaw_with_its_own_tr
     """Mechanism 1, facing a wall: a yaw error there is nearly a sideways shift of every
     match, so the 1-point translation solved at a wrong Manhattan yaw soaks it up and still
     explains the matches, while the right 2-point motion, whose translation was fitted to
-    the image a few millimetres off, explained fewer. On a held-out hall a track sliding
-    onto another surface 1.9 and 4 deg off out-scored the 2-point yaw that way (35 against
+    the image a few millimetres off, explained fewer. On a held-out hall a track whose
+    heading jumped by 1.9 and then 4 deg out-scored the right 2-point yaw that way (35 against
     16 matches) and put 5.3 deg into the final heading. Each yaw is now scored with its
     best translation, and the truncated cost decides. Measured (vetoes of 20), the 2-point
     translation 10 mm off: wrong walls 1 deg off 19 (0 before), 2 deg off 20 (10 before);
