@@ -128,6 +128,9 @@ class FrameDiagnostics:
     rejected: list[dict] = field(default_factory=list)  # estimates refused, and why
     partial: dict | None = None       # a partial step: the prior's kind and the walls used
     partial_dense: dict | None = None  # a partial step's depth alignment: s (m) along the guessed direction, sigma, points (no s_m: none found)
+    #: a partial step's 2-point yaw measured from the keyframe: its age, inliers, the step's
+    #: yaw so found and the frame-to-frame one (deg), their disagreement in sigmas
+    keyframe_yaw: dict | None = None
     depth_yaw: dict | None = None  # a step no wall or corner turned: its yaw from the depth images (no yaw_deg: none found)
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
     #: the keyframe the step was measured against: frames since it, its corners still

@@ -267,6 +267,10 @@ class OdometryConfig:
     #: made the chains' errors over 100 frames larger (3.3 -> 5.4 mm on straight_s3707):
     #: their frame-to-frame errors do not add up as the 2-point steps' do.
     keyframe_dpp: bool = False
+    #: A partial step whose yaw is the 2-point method's (no wall, too few depths for its
+    #: scale) takes that yaw from the keyframe too: the step's yaw is the difference of two
+    #: yaws measured from the keyframe, so that a per-step bias does not add up frame by frame.
+    keyframe_partial_yaw: bool = True
     keyframe_min_fraction: float = 0.5
     keyframe_max_baseline_m: float = 1.0
     keyframe_max_yaw_deg: float = 30.0

@@ -151,7 +151,7 @@ class KeyframeTracker:
         return between(m, motion_k)[1] / n, n
 
     def commit(self, x_lev: np.ndarray, P_lev: np.ndarray, planes: list, measured=None, guessed=None,
-               walls: bool = False) -> bool:
+               walls: bool = False, yaw_var: float | None = None) -> bool:
         """End the frame; returns True when this frame became K.
 
         ``measured``: ``(motion K -> this frame, (3, 3) cov)`` the step was taken from (its
@@ -160,6 +160,9 @@ class KeyframeTracker:
         carried onto K's motion, so that the next measured step, re-measured against K,
         takes back what the guess got wrong. Neither: this frame becomes K (a measured step
         whose re-measurement failed). ``walls``: the step's yaw came from walls.
+        ``yaw_var`` (rad^2): a guessed step whose yaw was measured from K (its yaw is the
+        difference of two yaws from K): the motion's yaw is then that measurement, of this
+        variance, no longer the sum of the guesses.
         """
         kf = self.kf
         tracked = int((self._owner >= 0).sum()) if self._owner is not None else 0
@@ -178,6 +181,10 @@ class KeyframeTracker:
                 kf.cov = compose_covariance(kf.motion, b, kf.cov, cov_b)
                 kf.guess_cov = compose_covariance(kf.motion, b, kf.guess_cov, cov_b)
                 kf.motion = compose(kf.motion, b)
+                if yaw_var is not None:
+                    for m in (kf.cov, kf.guess_cov):
+                        m[0, :] = m[:, 0] = 0.0
+                    kf.cov[0, 0] = float(yaw_var)
             kf.owner = self._owner
             renew = (tracked < self.min_fraction * max(kf.start, 1)
                      or math.hypot(kf.motion[1][0], kf.motion[1][2]) > self.max_baseline_m

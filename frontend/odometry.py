@@ -268,6 +268,31 @@ def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool)
     return cov_k * np.outer(d, d)
 
 
+def _refused_scale_yaw(motion, est) -> tuple[float, float] | None:
+    """``(yaw, sigma)`` (rad) of a 2-point estimate whose metric scale was refused, or None.
+
+    A few depths can bend the joint fit's yaw away from what the image matches say (a
+    depth-edge point passing the scale gate): then the yaw is the matches' own, with the
+    disagreement as its sigma. A rotation that explains every match leaves the yaw no
+    freedom. Far points let the yaw and the sideways direction trade off, and the image
+    matches alone picked a wrong end of that valley (yaw errors of 0.4-1.6 deg at 5-20
+    sigma on the tuning halls); a wheeled base's step follows its heading
+    (``odometry.lateral_slip``, ``lateral_prior_m`` in ``est.extra``): the joint fit's yaw
+    then holds without a trusted scale, which only enters through the camera's lever arm
+    (on a low-texture tuning hall, seed 3501, 58 such steps erred 0.07 deg rms, where the
+    bridges they had been erred 0.1-0.4 deg each while the heading weaved). A holonomic
+    base: nothing fixes the direction without depth (None).
+    """
+    sigma = math.sqrt(float(est.covariance[0, 0]))
+    y_img = float(est.extra.get("epipolar_yaw", motion.yaw))
+    bend = abs(float(geometry.wrap_angle(motion.yaw - y_img)))
+    if est.status == "pure_rotation":
+        return y_img, max(sigma, bend)
+    if "lateral_prior_m" in est.extra:
+        return float(motion.yaw), max(sigma, bend)
+    return None
+
+
 def _prior_cov(sigma_prior) -> np.ndarray:
     """(2, 2) covariance of a translation prior given as one sigma per axis (m) or as a
     (2, 2) covariance (m^2)."""
@@ -367,6 +392,7 @@ class PlanarOdometry:
         # was taken from, or the step that was guessed, each with its covariance
         self._kf_measured: tuple | None = None
         self._kf_guessed: tuple | None = None
+        self._kf_yaw_var: float | None = None  # a partial step's yaw measured from the keyframe
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
         # and its rate of change (_remember_translation, _bridge_sigmas)
@@ -466,13 +492,14 @@ class PlanarOdometry:
         which this frame then carries on or becomes (frontend/keyframe.py)."""
         step, lev_motion = None, (0.0, np.zeros(3), 0.0)
         tracked = self._keyframes.follow(matches, len(x_lev))
-        self._kf_measured = self._kf_guessed = None
+        self._kf_measured = self._kf_guessed = self._kf_yaw_var = None
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
                                               planes)
         age = self._keyframes.kf.age + 1 if self._keyframes.kf is not None else 0
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
-                                         walls=step is not None and step.status == STATUS_DPP)
+                                         walls=step is not None and step.status == STATUS_DPP,
+                                         yaw_var=self._kf_yaw_var if self._kf_guessed is not None else None)
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
 
@@ -571,8 +598,9 @@ class PlanarOdometry:
             dpp, mf_yaw = None, None
         two, weak = self._weak_scale(two, mf_yaw, info)
         if weak is not None and mf_yaw is None:
-            # no wall gives the yaw, the 2-point method does: a partial step at its yaw
-            mf_yaw = weak
+            # no wall gives the yaw, the 2-point method does: a partial step at its yaw,
+            # measured from the keyframe when it can be
+            mf_yaw = self._keyframe_yaw(weak, x_lev, P_lev, mount_se2, info)
         depth = _typical_depth(P1)
         for est, status in ((dpp, STATUS_DPP), (two, STATUS_2PT)):
             if est is None:
@@ -835,21 +863,55 @@ class PlanarOdometry:
         if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma and whole:
             return two, None
         info.two_point["scale_refused"] = n_scale
-        if est.status == "pure_rotation":
-            # a rotation that explains every match leaves the yaw no freedom
-            return None, (y_img, max(sigma, bend), y_img)
-        if "lateral_prior_m" in est.extra:
-            # Far points let the yaw and the sideways direction trade off, and the image
-            # matches alone picked a wrong end of that valley (yaw errors of 0.4-1.6 deg at
-            # 5-20 sigma on the tuning halls). A wheeled base's step follows its heading
-            # (odometry.lateral_slip): the joint fit's yaw then holds without a trusted
-            # scale, which only enters through the camera's lever arm. On a low-texture
-            # tuning hall (seed 3501) 58 such steps erred 0.07 deg rms, where the bridges
-            # they had been erred 0.1-0.4 deg each while the heading weaved.
-            y_fit = float(two[0].yaw)
-            return None, (y_fit, max(sigma, bend), y_fit)
-        # a holonomic base: nothing fixes the direction without depth
-        return None, None
+        yaw = _refused_scale_yaw(two[0], est)
+        return None, None if yaw is None else (yaw[0], yaw[1], yaw[0])
+
+    def _keyframe_yaw(self, weak: tuple[float, float, float], x_lev, P_lev, mount_se2, info):
+        """``(yaw, sigma, rate yaw)`` (rad) of a partial step whose yaw is the 2-point
+        method's: the difference of the yaws from the keyframe K to this frame and to the
+        previous one, or ``weak`` (its frame-to-frame yaw) when K is the previous frame, the
+        chain since K took its yaw from walls, or the motion from K fails or disagrees. The
+        rate yaw, which the next guesses turn at, stays the frame-to-frame one.
+
+        Frame to frame, such yaws erred with a bias of their own per scene (-0.024 to +0.037
+        deg a step on held-out halls; 106 such steps summed -2.5 deg on hall_s4205), which a
+        chain of them collects. Measured from K, the step's yaw errs by the difference of two
+        motions' errors from K, and the chain since K telescopes to the last one: the
+        errors no longer add up. The step's sigma is the frame-to-frame one with the
+        guessed yaws' since K added (the comment at the sigma says why not two motions').
+        """
+        c, kt = self.config.odometry, self._keyframes
+        if not (c.keyframes and c.keyframe_partial_yaw and kt.active()) or kt.kf.walls:
+            return weak
+        x1, x2, P1, P2 = kt.correspondences(x_lev, P_lev)
+        if len(x1) < 2:
+            return weak
+        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._keyframe_two_point_options(
+            mount_se2, kt.kf.age))
+        yaw = None
+        if (motion is not None and est.covariance is not None and est.covariance[0, 0] > 0
+                and est.num_inliers >= c.yaw_only_min_inliers and est.num_inliers >= c.min_inlier_ratio * len(x1)):
+            trusted = est.scale_inliers is not None and int(est.scale_inliers.sum()) >= c.min_scale_inliers
+            yaw = (float(motion.yaw), math.sqrt(float(est.covariance[0, 0]))) if trusted else \
+                _refused_scale_yaw(motion, est)
+        if yaw is None:
+            return weak
+        step_yaw = float(geometry.wrap_angle(yaw[0] - kt.kf.motion[0]))
+        # Consecutive yaws from K share the drift of K's tracks (the keyframe_track_px walk
+        # in their sigmas), so their difference errs like a frame-to-frame yaw; it also
+        # takes back what guessed yaws since the last measurement got wrong.
+        sigma = math.sqrt(weak[1] ** 2 + kt.kf.guess_cov[0, 0])
+        d = float(geometry.wrap_angle(step_yaw - weak[0]))
+        m2 = d * d / (kt.kf.cov[0, 0] + yaw[1] ** 2 + weak[1] ** 2)
+        info.keyframe_yaw = {"age": kt.kf.age, "inliers": int(est.num_inliers), "yaw_deg": math.degrees(step_yaw),
+                             "frame_deg": math.degrees(weak[0]), "sigmas": math.sqrt(m2)}
+        if not m2 <= c.keyframe_gate_chi2:
+            info.rejected.append({"status": STATUS_PARTIAL, "keyframe_sigmas": math.sqrt(m2),
+                                  "keyframe_age": kt.kf.age})
+            return weak
+        self._kf_yaw_var = yaw[1] ** 2
+        # the next guesses turn at the frame-to-frame rate, not at what this step took back
+        return step_yaw, sigma, weak[2]
 
     def _vetoed(self, dpp, two, pts, info) -> bool:
         """True when the 2-point yaw contradicts the Manhattan yaw (a wrong association).
