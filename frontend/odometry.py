@@ -873,9 +873,10 @@ class PlanarOdometry:
         chain since K took its yaw from walls, or the motion from K fails or disagrees. The
         rate yaw, which the next guesses turn at, stays the frame-to-frame one.
 
-        Frame to frame, such yaws erred with a bias of their own per scene (-0.024 to +0.037
-        deg a step on held-out halls; 106 such steps summed -2.5 deg on hall_s4205), which a
-        chain of them collects. Measured from K, the step's yaw errs by the difference of two
+        Frame to frame, such yaws erred with a bias of their own per scene, which a chain
+        of them collects: the partial steps of the held-out hall_s4205 summed -3.26 deg
+        (292 steps; +0.93 from K), those of four tuning halls -0.71 to +0.91 deg (-0.10 to
+        +0.45 from K; docs/bench/keyframe_partial_yaw_session27.md). Measured from K, the step's yaw errs by the difference of two
         motions' errors from K, and the chain since K telescopes to the last one: the
         errors no longer add up. The step's sigma is the frame-to-frame one with the
         guessed yaws' since K added (the comment at the sigma says why not two motions').
