@@ -268,6 +268,13 @@ def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool)
     return cov_k * np.outer(d, d)
 
 
+def _image_yaw_bend(motion, est) -> tuple[float, float, float]:
+    """``(sigma, image yaw, bend)`` (rad) of a 2-point estimate: its yaw sigma, the yaw the
+    image matches alone give (``epipolar_yaw``), and how far the joint fit's yaw is from it."""
+    y_img = float(est.extra.get("epipolar_yaw", motion.yaw))
+    return math.sqrt(float(est.covariance[0, 0])), y_img, abs(float(geometry.wrap_angle(motion.yaw - y_img)))
+
+
 def _refused_scale_yaw(motion, est) -> tuple[float, float] | None:
     """``(yaw, sigma)`` (rad) of a 2-point estimate whose metric scale was refused, or None.
 
@@ -283,9 +290,7 @@ def _refused_scale_yaw(motion, est) -> tuple[float, float] | None:
     bridges they had been erred 0.1-0.4 deg each while the heading weaved). A holonomic
     base: nothing fixes the direction without depth (None).
     """
-    sigma = math.sqrt(float(est.covariance[0, 0]))
-    y_img = float(est.extra.get("epipolar_yaw", motion.yaw))
-    bend = abs(float(geometry.wrap_angle(motion.yaw - y_img)))
+    sigma, y_img, bend = _image_yaw_bend(motion, est)
     if est.status == "pure_rotation":
         return y_img, max(sigma, bend)
     if "lateral_prior_m" in est.extra:
@@ -857,9 +862,7 @@ class PlanarOdometry:
         # A few depths can bend the joint fit's yaw away from what the image matches say
         # (a depth-edge point passing the scale gate); then the step is not trusted and
         # its yaw is the matches' own, with the disagreement as its sigma.
-        sigma = math.sqrt(float(est.covariance[0, 0]))
-        y_img = float(est.extra.get("epipolar_yaw", two[0].yaw))
-        bend = abs(float(geometry.wrap_angle(two[0].yaw - y_img)))
+        sigma, _, bend = _image_yaw_bend(two[0], est)
         if n_scale >= c.weak_scale_inliers and mf_yaw is None and bend <= 3.0 * sigma and whole:
             return two, None
         info.two_point["scale_refused"] = n_scale
@@ -876,9 +879,9 @@ class PlanarOdometry:
         Frame to frame, such yaws erred with a bias of their own per scene, which a chain
         of them collects: the partial steps of the held-out hall_s4205 summed -3.26 deg
         (292 steps; +0.93 from K), those of four tuning halls -0.71 to +0.91 deg (-0.10 to
-        +0.45 from K; docs/bench/keyframe_partial_yaw_session27.md). Measured from K, the step's yaw errs by the difference of two
-        motions' errors from K, and the chain since K telescopes to the last one: the
-        errors no longer add up. The step's sigma is the frame-to-frame one with the
+        +0.45 from K; docs/bench/keyframe_partial_yaw_session27.md). Measured from K, the
+        step's yaw errs by the difference of two motions' errors from K, and the chain
+        since K telescopes to the last one: the errors no longer add up. The step's sigma is the frame-to-frame one with the
         guessed yaws' since K added (the comment at the sigma says why not two motions').
         """
         c, kt = self.config.odometry, self._keyframes
