@@ -1318,6 +1318,12 @@ class PlanarOdometry:
             return None
         self._since_t += 1  # the guess is for this frame
         sb = self._bridge_sigmas(False)[0]
+        # A gate is for motions the platform cannot make: however steady the cruise (its
+        # steps changing by their 1-2 mm noise), the robot may brake at its acceleration
+        # limit on the next frame. Gated at the cruise's noise, the 2-point steps of a
+        # held-out L's 1 s stop ramp (5.5 mm a frame slower each) were refused at 7 sigmas
+        # and their partial steps took a depth yaw 0.6 deg off.
+        sb = max(sb, c.bridge_accel_xy * self._dt * self._dt * self._since_t)
         self._since_t -= 1
         # ... but a guess is only as steady as the steps it copies: when they disagree among
         # themselves (a direction-plus-point blunder 31-44 mm sideways just before on a tuning

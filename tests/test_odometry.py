@@ -346,3 +346,25 @@ def test_a_two_point_step_against_the_velocity_is_not_a_measurement():
     off.__dict__.update({k: getattr(odo, k) for k in ("_dt", "_history", "_last_motion", "_last_t_sigma")})
     off._n = 10
     assert not off._velocity_jump(np.array([-0.0508, 0.0, 0.017]), cov, FrameDiagnostics())
+
+
+def test_a_robot_braking_at_its_acceleration_limit_is_not_a_velocity_jump():
+    """The gate refuses what the platform cannot do, not what a steady cruise did not:
+    after 55 mm steps at 10 Hz that changed by their 0.3 mm noise, the robot brakes at
+    0.5 m/s^2 (a 1 s stop ramp): the 2-point step 8 mm short of the five-step guess, stated
+    at 0.8 mm, is a measurement (refused at 7.5 sigmas when the gate took the cruise's
+    noise for the platform's limit). A tile grid's alias 50 mm off is still refused."""
+    from planar_vo.core.steps import FrameDiagnostics
+
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    odo = PlanarOdometry(K)
+    odo._n, odo._dt = 10, 0.1
+    noise = [0.0, 0.0003, -0.0002, 0.0001, -0.0003]
+    odo._history = [(6 + k, np.array([0.0, 0.0, -0.055 + dz])) for k, dz in enumerate(noise)]
+    odo._last_motion = (0.0, np.array([0.0, 0.0, -0.055]))
+    odo._last_t_sigma = 0.0005
+    cov = np.diag([1e-6, 0.0008 ** 2, 0.0008 ** 2])
+    info = FrameDiagnostics()
+    assert not odo._velocity_jump(np.array([0.0, 0.0, -0.047]), cov, info)
+    assert info.rejected == []
+    assert odo._velocity_jump(np.array([0.0, 0.0, -0.005]), cov, info)
