@@ -55,6 +55,11 @@ class BackendConfig:
     #: as a factor from that keyframe, not from the previous frame. False: every step is a
     #: factor from the previous frame (the steps are then not independent).
     keyframe_links: bool = True
+    #: A partial step whose yaw the front-end measured from a keyframe (``Step.keyframe_yaw``)
+    #: keeps only its translation; that yaw enters as a heading factor from the keyframe.
+    #: False: the step's yaw stays on its own factor, and a correction it takes back from
+    #: the guessed yaws since the keyframe looks like one step's jump to the motion prior.
+    keyframe_yaw_links: bool = True
 
     #: Motion prior next to steps whose translation vision did not measure (partial,
     #: bridged): the base_link velocity of consecutive steps agrees within this acceleration

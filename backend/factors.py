@@ -82,6 +82,15 @@ def step_noise(information: np.ndarray):
     return gtsam.noiseModel.Gaussian.Information(information)
 
 
+def heading_between_factor(i: int, j: int, yaw: float, variance: float, *, kernel: str, parameter: float):
+    """``theta_j - theta_i = yaw`` (rad) at ``variance`` (rad^2), nothing on the translation:
+    a ``BetweenFactorPose2(X(i), X(j), Pose2(0, 0, yaw))`` whose noise has zero information
+    on the translation rows (its rotation row is exact whatever the translations, as for
+    the native Manhattan factor above). A heading change measured from a keyframe."""
+    noise = gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 1.0 / variance]))
+    return gtsam.BetweenFactorPose2(X(i), X(j), gtsam.Pose2(0.0, 0.0, yaw), robust_noise(noise, kernel, parameter))
+
+
 def manhattan_residual(theta: float, m: float, measured: float) -> float:
     """``wrap(m - theta - measured)`` in [-pi, pi): the rotation factor's residual."""
     return math.remainder(m - theta - measured, TWO_PI)

@@ -76,6 +76,20 @@ class KeyframeLink:
 
 
 @dataclass
+class KeyframeYaw:
+    """The heading change of base_link from a keyframe ``lag`` frames back to this frame,
+    measured directly by the 2-point method (its scale refused): ``yaw`` (rad,
+    counter-clockwise, REP 103) of ``variance`` (rad^2). Carried by a partial step whose
+    yaw is the difference of two such (:meth:`PlanarOdometry._keyframe_yaw`): the back-end
+    ties the keyframe's heading to this frame's with it and keeps only the translation of
+    the step's own factor, whose yaw error is not independent of the previous step's."""
+
+    lag: int
+    yaw: float
+    variance: float
+
+
+@dataclass
 class Step:
     """Relative motion of base_link from the previous frame to this one.
 
@@ -86,7 +100,8 @@ class Step:
     part of the translation). A partial step's information is large on theta and on the
     translation directions its walls observe, small elsewhere. ``keyframe``: the motion
     from the keyframe the step was measured against, when that is an earlier frame than
-    the previous one (:class:`KeyframeLink`), else None. ``guess_information``: (3, 3),
+    the previous one (:class:`KeyframeLink`), else None; ``keyframe_yaw``: the heading
+    change from the keyframe alone (:class:`KeyframeYaw`), else None. ``guess_information``: (3, 3),
     the part of ``information`` that comes from the front-end's constant-velocity guess
     rather than a measurement (partial and bridged steps), else None: a back-end with a
     motion prior of its own puts that prior in its place, not on top of it.
@@ -97,6 +112,7 @@ class Step:
     status: str
     inliers: int = 0
     keyframe: KeyframeLink | None = None
+    keyframe_yaw: KeyframeYaw | None = None
     guess_information: np.ndarray | None = None
 
 

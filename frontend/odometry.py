@@ -55,7 +55,8 @@ from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.pointplanes import refine_pairs_on_planes
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
 from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
-                                      FrameResult, KeyframeLink, ManhattanObservation, Step, WallObservation)
+                                      FrameResult, KeyframeLink, KeyframeYaw, ManhattanObservation, Step,
+                                      WallObservation)
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
@@ -398,6 +399,7 @@ class PlanarOdometry:
         self._kf_measured: tuple | None = None
         self._kf_guessed: tuple | None = None
         self._kf_yaw_var: float | None = None  # a partial step's yaw measured from the keyframe
+        self._kf_yaw: tuple[int, float] | None = None  # and that yaw: (frames since K, levelled yaw K -> here)
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
         # and its rate of change (_remember_translation, _bridge_sigmas)
@@ -497,7 +499,7 @@ class PlanarOdometry:
         which this frame then carries on or becomes (frontend/keyframe.py)."""
         step, lev_motion = None, (0.0, np.zeros(3), 0.0)
         tracked = self._keyframes.follow(matches, len(x_lev))
-        self._kf_measured = self._kf_guessed = self._kf_yaw_var = None
+        self._kf_measured = self._kf_guessed = self._kf_yaw_var = self._kf_yaw = None
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
                                               planes)
@@ -913,7 +915,7 @@ class PlanarOdometry:
             info.rejected.append({"status": STATUS_PARTIAL, "keyframe_sigmas": math.sqrt(m2),
                                   "keyframe_age": kt.kf.age})
             return weak
-        self._kf_yaw_var = yaw[1] ** 2
+        self._kf_yaw_var, self._kf_yaw = yaw[1] ** 2, (kt.kf.age + 1, yaw[0])
         # the next guesses turn at the frame-to-frame rate, not at what this step took back
         return step_yaw, sigma, weak[2]
 
@@ -1024,8 +1026,17 @@ class PlanarOdometry:
         if mf_yaw is None:
             guess[0, 0] = 1.0 / sigma_yaw ** 2
         self._partial_guess(float(yaw_ff), t, cov, how, measured)
-        return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"],
+        return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"], keyframe_yaw=self._yaw_link(mount_se2),
                      guess_information=Ji.T @ guess @ Ji), (yaw, t, sigma_yaw ** 2))
+
+    def _yaw_link(self, mount_se2) -> KeyframeYaw | None:
+        """The base_link heading change from the keyframe of a partial step whose yaw
+        :meth:`_keyframe_yaw` measured from it, or None."""
+        if self._kf_yaw is None:
+            return None
+        lag, yaw = self._kf_yaw
+        theta = float(lev_motion_to_base_step(yaw, np.zeros(3), None, mount_se2)[0][2])
+        return KeyframeYaw(int(lag), theta, float(self._kf_yaw_var))
 
     def _partial_translation(self, walls1, walls2, yaw: float, yaw_ff: float, prior: np.ndarray, prior_cov, pts,
                              info, wide: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:

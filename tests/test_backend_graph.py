@@ -411,6 +411,54 @@ def test_a_keyframe_link_replaces_the_step_factor():
         np.testing.assert_allclose(g.raw_poses()[3], [3 * s + 0.005, 0, 0], atol=1e-9)  # raw: the chain
 
 
+def _guessed_yaw_gap(link: bool, online: bool = False):
+    """A base driving straight (25 mm steps at 20 Hz): ten measured steps, then twenty
+    partial ones whose yaw is a guess 0.05 deg off each (stated at 0.1-1 deg), then one
+    whose yaw the front-end measured from the keyframe (frame 10, heading change 0 at
+    0.1 deg): its own yaw takes the guesses' +0.95 deg back at their summed sigma."""
+    from planar_vo.core.steps import KeyframeYaw
+    d, e = 0.025, math.radians(0.05)
+    tight = _info(1e-3, 1e-3, math.radians(0.02))
+    steps = [Step(np.array([d, 0.0, 0.0]), tight, STATUS_DPP) for _ in range(10)]
+    sig = [math.radians(0.1 + 0.045 * i) for i in range(19)]
+    steps += [Step(np.array([d, 0.0, e]), _info(2e-3, 2e-3, sg), STATUS_PARTIAL) for sg in sig]
+    back = math.sqrt(math.radians(0.1) ** 2 + sum(x * x for x in sig))
+    steps.append(Step(np.array([d, 0.0, -19 * e]), _info(2e-3, 2e-3, back), STATUS_PARTIAL,
+                      keyframe_yaw=KeyframeYaw(20, 0.0, math.radians(0.1) ** 2) if link else None))
+    steps += [Step(np.array([d, 0.0, 0.0]), tight, STATUS_DPP) for _ in range(10)]
+    g = (IncrementalPlanarPoseGraph if online else PlanarPoseGraph)(BackendConfig(manhattan=False))
+    for r in _results(steps, stamps=0.05 * np.arange(len(steps) + 1)):
+        g.add_frame(r)
+    return g, (g.estimate() if online else g.optimize())
+
+
+def test_a_yaw_measured_from_the_keyframe_is_a_heading_factor_from_it():
+    """A partial step whose yaw was measured from the keyframe takes back what the guessed
+    yaws since it got wrong. As the step's own yaw, that correction is one step's jump of
+    -0.95 deg, which the motion prior's turn-rate smoothness refuses: the graph keeps the
+    guesses' heading error. As a heading factor from the keyframe, the graph puts the
+    heading right where it was measured and spreads the correction over the guesses."""
+    g_off, est_off = _guessed_yaw_gap(link=False)
+    g_on, est_on = _guessed_yaw_gap(link=True)
+    assert g_on.stats["factors"]["keyframe_yaw_links"] == 1
+    assert abs(math.degrees(est_on[30, 2])) < 0.15
+    assert abs(math.degrees(est_on[-1, 2])) < 0.15
+    assert abs(math.degrees(est_off[30, 2])) > 0.5
+    np.testing.assert_allclose(g_on.raw_poses(), g_off.raw_poses(), atol=1e-12)  # raw: the chain either way
+    _, est_online = _guessed_yaw_gap(link=True, online=True)  # iSAM2 builds the same factors
+    assert abs(math.degrees(est_online[-1, 2])) < 0.15
+
+
+def test_a_keyframe_yaw_outside_the_graph_is_refused():
+    from planar_vo.core.steps import KeyframeYaw
+    steps = [Step(np.array([0.1, 0.0, 0.0]), _info(1e-3, 1e-3, 1e-3), STATUS_PARTIAL,
+                  keyframe_yaw=KeyframeYaw(3, 0.0, 1e-4))]
+    g = PlanarPoseGraph(BackendConfig())
+    g.add_frame(_results(steps)[0])
+    with pytest.raises(ValueError, match="keyframe_yaw lag 3"):
+        g.add_frame(_results(steps)[1])
+
+
 def test_a_keyframe_link_outside_the_graph_is_refused():
     from planar_vo.core.steps import KeyframeLink
     steps = [Step(np.array([0.1, 0.0, 0.0]), _info(1e-3, 1e-3, 1e-3), STATUS_DPP,
