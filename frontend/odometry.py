@@ -398,8 +398,8 @@ class PlanarOdometry:
         # was taken from, or the step that was guessed, each with its covariance
         self._kf_measured: tuple | None = None
         self._kf_guessed: tuple | None = None
-        self._kf_yaw_var: float | None = None  # a partial step's yaw measured from the keyframe
-        self._kf_yaw: tuple[int, float] | None = None  # and that yaw: (frames since K, levelled yaw K -> here)
+        # a partial step's yaw measured from the keyframe: (frames since K, levelled yaw K -> here, variance)
+        self._kf_yaw: tuple[int, float, float] | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
         # and its rate of change (_remember_translation, _bridge_sigmas)
@@ -499,14 +499,14 @@ class PlanarOdometry:
         which this frame then carries on or becomes (frontend/keyframe.py)."""
         step, lev_motion = None, (0.0, np.zeros(3), 0.0)
         tracked = self._keyframes.follow(matches, len(x_lev))
-        self._kf_measured = self._kf_guessed = self._kf_yaw_var = self._kf_yaw = None
+        self._kf_measured = self._kf_guessed = self._kf_yaw = None
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
                                               planes)
         age = self._keyframes.kf.age + 1 if self._keyframes.kf is not None else 0
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
                                          walls=step is not None and step.status == STATUS_DPP,
-                                         yaw_var=self._kf_yaw_var if self._kf_guessed is not None else None)
+                                         yaw_var=self._kf_yaw[2] if self._kf_yaw and self._kf_guessed is not None else None)
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
 
@@ -915,7 +915,7 @@ class PlanarOdometry:
             info.rejected.append({"status": STATUS_PARTIAL, "keyframe_sigmas": math.sqrt(m2),
                                   "keyframe_age": kt.kf.age})
             return weak
-        self._kf_yaw_var, self._kf_yaw = yaw[1] ** 2, (kt.kf.age + 1, yaw[0])
+        self._kf_yaw = (kt.kf.age + 1, yaw[0], yaw[1] ** 2)
         # the next guesses turn at the frame-to-frame rate, not at what this step took back
         return step_yaw, sigma, weak[2]
 
@@ -1034,9 +1034,9 @@ class PlanarOdometry:
         :meth:`_keyframe_yaw` measured from it, or None."""
         if self._kf_yaw is None:
             return None
-        lag, yaw = self._kf_yaw
+        lag, yaw, var = self._kf_yaw
         theta = float(lev_motion_to_base_step(yaw, np.zeros(3), None, mount_se2)[0][2])
-        return KeyframeYaw(int(lag), theta, float(self._kf_yaw_var))
+        return KeyframeYaw(int(lag), theta, float(var))
 
     def _partial_translation(self, walls1, walls2, yaw: float, yaw_ff: float, prior: np.ndarray, prior_cov, pts,
                              info, wide: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:

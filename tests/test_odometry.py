@@ -352,7 +352,7 @@ def test_a_robot_braking_at_its_acceleration_limit_is_not_a_velocity_jump():
     """The gate refuses what the platform cannot do, not what a steady cruise did not:
     after 55 mm steps at 10 Hz that changed by their 0.3 mm noise, the robot brakes at
     0.5 m/s^2 (a 1 s stop ramp): the 2-point step 8 mm short of the five-step guess, stated
-    at 0.8 mm, is a measurement (refused at 7.5 sigmas when the gate took the cruise's
+    at 0.8 mm, is a measurement (1.6 sigmas; refused at 6.2 when the gate took the cruise's
     noise for the platform's limit). A tile grid's alias 50 mm off is still refused."""
     from planar_vo.core.steps import FrameDiagnostics
 
