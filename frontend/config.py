@@ -82,6 +82,12 @@ class PlaneConfig:
     #: noise sigmas at 4.5 m) was chosen over 0.1 on the tuning halls (seeds 3100-3107,
     #: 3200-3207): 0.1 also dropped the walls the return legs need. 0 disables.
     range_margin: float = 0.05
+    #: A wall whose inliers hold parallel layers in contiguous sections along it (doors and
+    #: posters 3-10 mm proud, each filling one part of the wall's extent) is fitted as one
+    #: plane plus an offset per section, when each section's offset is clear in the band
+    #: medians (planes._layer_step): a single fit across the layers tilted held-out walls by
+    #: 0.2-0.44 deg. The distance stays the single fit's (docs/bench/wall_layers_session29.md).
+    layer_step: bool = True
 
     def __post_init__(self) -> None:
         _positive("planes", stride=self.stride,
