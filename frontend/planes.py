@@ -753,10 +753,7 @@ def _layer_step(u: np.ndarray, r: np.ndarray, w: np.ndarray, sel: np.ndarray):
         return None
     med, uc, zc, W, full, lo, hi = bands
     m = len(med)
-    # every section [a, b) of at least _STEP_MIN_BANDS bands
-    a, b = np.triu_indices(m + 1, _STEP_MIN_BANDS)
-    ok = b - a <= m - _STEP_MIN_BANDS
-    a, b = a[ok], b[ok]
+    a, b = _sections(m)
     chosen = _layer_sections(med, uc, zc, W, a, b) if len(a) else []
     if not chosen:
         return None
@@ -770,6 +767,17 @@ def _layer_step(u: np.ndarray, r: np.ndarray, w: np.ndarray, sel: np.ndarray):
         edges = ([first - 1, first] if a[c] > 0 else []) + ([last, last + 1] if b[c] < m else [])
         keep &= ~np.isin(bin_all, edges)
     return keep, sections
+
+
+@functools.lru_cache(maxsize=64)
+def _sections(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every section ``[a, b)`` of ``m`` bands holding at least ``_STEP_MIN_BANDS`` of them
+    and leaving as many outside: ``(a, b)`` (S,) int each, cached (read-only)."""
+    a, b = np.triu_indices(m + 1, _STEP_MIN_BANDS)
+    ok = b - a <= m - _STEP_MIN_BANDS
+    a, b = a[ok], b[ok]
+    a.flags.writeable = b.flags.writeable = False
+    return a, b
 
 
 def _layer_bands(u: np.ndarray, r: np.ndarray, w: np.ndarray, sel: np.ndarray):
@@ -822,6 +830,8 @@ def _layer_sections(med, uc, zc, W, a: np.ndarray, b: np.ndarray) -> list[int]:
     used = np.zeros(m)
     czz = seg(W * zc * zc)
     Wt = float(W.sum())
+    wz = W * zc
+    cw_cols = [seg(wz * X[:, j]) for j in range(X.shape[1])]  # c'W x_j per section, per column
     while len(chosen) < _STEP_MAX_SECTIONS:
         # Sections are disjoint and leave the base layer a share of the wall (a sum of
         # sections covering it all is the line itself, w being linear in u along a wall;
@@ -834,20 +844,24 @@ def _layer_sections(med, uc, zc, W, a: np.ndarray, b: np.ndarray) -> list[int]:
         except np.linalg.LinAlgError:
             break
         res = med - X @ (M @ (XtW @ med))
+        need = _STEP_MIN_CHI2
+        if float(res @ (W * res)) < need:
+            break  # no section can remove more misfit than there is
         # adding the column c = zc over [a, b): the misfit drops by (c'W res)^2 / (c'W c - c'W X M X'W c)
-        num = seg(W * zc * res)
-        cwx = np.stack([seg(W * zc * X[:, j]) for j in range(X.shape[1])], axis=1)  # (S, p)
+        num = seg(wz * res)
+        cwx = np.stack(cw_cols, axis=1)  # (S, p)
         den = czz - np.einsum("sp,pq,sq->s", cwx, M, cwx)
         with np.errstate(divide="ignore", invalid="ignore"):
             gain = np.where(free & (den > 0.05 * czz), num * num / den, 0.0)
         best = int(np.argmax(gain))
-        if not (gain[best] >= _STEP_MIN_CHI2 and abs(num[best] / den[best]) >= _STEP_MIN_REL):
+        if not (gain[best] >= need and abs(num[best] / den[best]) >= _STEP_MIN_REL):
             break
         chosen.append(best)
         used[a[best]:b[best]] = 1.0
         col = np.zeros(m)
         col[a[best]:b[best]] = zc[a[best]:b[best]]
         X = np.column_stack([X, col])
+        cw_cols.append(seg(wz * col))
     return chosen
 
 
