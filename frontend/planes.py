@@ -482,12 +482,11 @@ class PlaneDetector:
         k = np.flatnonzero(keep)
         if len(k) < 10:
             return None
-        cols, masks = [x[k], y[k], np.ones(len(k))], []
+        cols = [x[k], y[k], np.ones(len(k))]
         for sec in sections:
             sk = sec[k]
             if 10 <= int(sk.sum()) <= len(k) - 10:  # else the edges took (nearly) all of a layer
                 cols.append(w[k] * sk)
-                masks.append(sk)
         A = np.stack(cols, axis=1)
         AtA = A.T @ A
         try:
