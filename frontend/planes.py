@@ -652,6 +652,29 @@ _LAYER_SAMPLES = 8192
 _SIGMA_SAMPLES = 4096
 
 
+def _residual_sample(r: np.ndarray, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(idx, r[idx], sigma)``: an evenly spread subsample of the inliers ``sel`` (K,) bool
+    (indices, residuals ``r`` (K,)) and the residuals' noise sigma.
+
+    The statistics of a plane's layers come from subsamples, so their cost stops growing
+    with the plane: the noise sigma from ~_SIGMA_SAMPLES differences of consecutive samples
+    (grid neighbours, nearly always on one surface, so a second layer does not inflate it;
+    2 % precision), the band medians from ~_LAYER_SAMPLES inliers (~170 a band; fewer let a
+    door shift the consensus). Selections made from them still cover every point.
+    """
+    idx = np.flatnonzero(sel)
+    n_sel = len(idx)
+    rs = r[idx]
+    step = -(-n_sel // _SIGMA_SAMPLES)
+    sig_d = rs[1::step] - rs[:-1:step]  # consecutive grid samples (neighbours), every step-th pair
+    step = -(-n_sel // _LAYER_SAMPLES)
+    if step > 1:
+        idx = idx[::step]
+        rs = rs[::step]
+    sig = 1.4826 / math.sqrt(2.0) * _median(np.abs(sig_d)) if len(sig_d) > 10 else 0.0
+    return idx, rs, sig
+
+
 def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max_half: float) -> np.ndarray:
     """Points (K,) bool of the dominant layer of a plane fit's residuals.
 
@@ -667,20 +690,8 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     consecutive samples -- grid neighbours, nearly always on one surface -- so a second
     layer does not inflate it as it inflates the residuals' own spread.
     """
-    idx = np.flatnonzero(sel)
-    # The statistics come from evenly spread subsamples, so their cost stops growing with
-    # the plane: the noise sigma from ~_SIGMA_SAMPLES differences (2 % precision), the band
-    # medians from ~_LAYER_SAMPLES inliers (~170 a band; fewer let a door shift the
-    # consensus). The final selection still covers every point.
-    n_sel = len(idx)
-    rs = r[idx]
-    step = -(-n_sel // _SIGMA_SAMPLES)
-    sig_d = rs[1::step] - rs[:-1:step]  # consecutive grid samples (neighbours), every step-th pair
-    step = -(-n_sel // _LAYER_SAMPLES)
-    if step > 1:
-        idx = idx[::step]
-        rs = rs[::step]
-    sig = 1.4826 / math.sqrt(2.0) * _median(np.abs(sig_d)) if len(sig_d) > 10 else 0.0
+    n_sel = int(sel.sum())
+    idx, rs, sig = _residual_sample(r, sel)
     half = min(max_half, max(0.1 * max_half, k * sig))
     us = u[idx]
     lo, hi = float(us.min()), float(us.max())
@@ -784,17 +795,10 @@ def _layer_bands(u: np.ndarray, r: np.ndarray, w: np.ndarray, sel: np.ndarray):
     ``(median residual, centred mean u, mean w, inverse variance of the median)`` (M,) each
     over the bands holding at least 5 samples, the (B,) bool of those bands, and the ``u``
     range ``lo, hi`` the B bands divide; None when there are too few points or bands."""
-    idx = np.flatnonzero(sel)
-    n_sel = len(idx)
+    n_sel = int(sel.sum())
     if n_sel < 400:
         return None
-    rs = r[idx]
-    step = -(-n_sel // _SIGMA_SAMPLES)
-    sig_d = rs[1::step] - rs[:-1:step]
-    sig = 1.4826 / math.sqrt(2.0) * _median(np.abs(sig_d)) if len(sig_d) > 10 else 0.0
-    step = -(-n_sel // _LAYER_SAMPLES)
-    if step > 1:
-        idx, rs = idx[::step], rs[::step]
+    idx, rs, sig = _residual_sample(r, sel)
     us, ws = u[idx], w[idx]
     lo, hi = float(us.min()), float(us.max())
     nb = int(min(48, max(4, n_sel // 60)))
@@ -843,8 +847,7 @@ def _layer_sections(med, uc, zc, W, a: np.ndarray, b: np.ndarray) -> list[int]:
         except np.linalg.LinAlgError:
             break
         res = med - X @ (M @ (XtW @ med))
-        need = _STEP_MIN_CHI2
-        if float(res @ (W * res)) < need:
+        if float(res @ (W * res)) < _STEP_MIN_CHI2:
             break  # no section can remove more misfit than there is
         # adding the column c = zc over [a, b): the misfit drops by (c'W res)^2 / (c'W c - c'W X M X'W c)
         num = seg(wz * res)
@@ -853,7 +856,7 @@ def _layer_sections(med, uc, zc, W, a: np.ndarray, b: np.ndarray) -> list[int]:
         with np.errstate(divide="ignore", invalid="ignore"):
             gain = np.where(free & (den > 0.05 * czz), num * num / den, 0.0)
         best = int(np.argmax(gain))
-        if not (gain[best] >= need and abs(num[best] / den[best]) >= _STEP_MIN_REL):
+        if not (gain[best] >= _STEP_MIN_CHI2 and abs(num[best] / den[best]) >= _STEP_MIN_REL):
             break
         chosen.append(best)
         used[a[best]:b[best]] = 1.0
