@@ -675,6 +675,15 @@ def _residual_sample(r: np.ndarray, sel: np.ndarray) -> tuple[np.ndarray, np.nda
     return idx, rs, sig
 
 
+def _band_of(u: np.ndarray, lo: float, scale: float, nb: int) -> np.ndarray:
+    """Band (K,) int64 of every point ``u`` (K,): ``(u - lo) scale`` truncated, clipped to
+    ``[0, nb)`` (the points outside the sample's range fall in the end bands)."""
+    t = u - lo
+    t *= scale
+    band = t.astype(np.int64)
+    return np.clip(band, 0, nb - 1, out=band)
+
+
 def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max_half: float) -> np.ndarray:
     """Points (K,) bool of the dominant layer of a plane fit's residuals.
 
@@ -717,10 +726,11 @@ def _dominant_layer(u: np.ndarray, r: np.ndarray, sel: np.ndarray, k: float, max
     d += icpt[:, None]
     np.subtract(med[None, :], d, out=d)
     inl = np.abs(d, out=d) < tau[None, :]
-    best = int(np.argmax(inl.astype(np.float64) @ nf))
+    # the bands' weights are whole counts (< 2^24): float32 sums are exact, the argmax the same
+    best = int(np.argmax(inl.astype(np.float32) @ nf.astype(np.float32)))
     good = np.zeros(nb, bool)
     good[np.flatnonzero(full)[inl[best]]] = True
-    bin_all = np.clip(((u - lo) * (nb / (hi - lo))).astype(np.int64), 0, nb - 1)
+    bin_all = _band_of(u, lo, nb / (hi - lo), nb)
     # Around the fit itself, not the consensus line: the line is only as good as the band
     # medians, and a band cut around a slightly wrong line would bias the refit towards it.
     return good[bin_all] & (np.abs(r) < half)
@@ -769,7 +779,7 @@ def _layer_step(u: np.ndarray, r: np.ndarray, w: np.ndarray, sel: np.ndarray):
         return None
     fb = np.flatnonzero(full)
     nb = len(full)
-    bin_all = np.clip(((u - lo) * (nb / (hi - lo))).astype(np.int64), 0, nb - 1)
+    bin_all = _band_of(u, lo, nb / (hi - lo), nb)
     keep, sections = sel.copy(), []
     for c in chosen:
         first, last = int(fb[a[c]]), int(fb[b[c] - 1])
