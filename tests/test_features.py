@@ -198,3 +198,42 @@ def test_windows_across_a_depth_jump_are_flagged_slanted_surfaces_are_not():
                        [500.0, 150.0], [392.0, 220.0], [600.0, 268.0]])
     flags = straddles_depth_jump(np.vstack([edge, smooth]), depth, 5, FeatureConfig().occlusion_rel)
     assert flags.tolist() == [True] * len(edge) + [False] * len(smooth)
+
+
+def test_corner_ratio_at_the_corners_equals_opencvs_whole_image_filters():
+    """_corner_ratio evaluates Sobel gradients and their box sums at the corners only; it must
+    give what OpenCV's whole-image filters give (BORDER_REFLECT_101 at the edges), points on
+    and next to the border included."""
+    from planar_vo.frontend.features import _corner_ratio
+
+    rng = np.random.default_rng(5)
+    img = _texture(rng, 120, 160)
+    img[40:60, 50:90] = rng.integers(0, 256, (20, 40))  # strong gradients: large tensor sums
+    pts = np.vstack([rng.uniform([0, 0], [159, 119], (300, 2)),
+                     [[0, 0], [159, 119], [0, 119], [159, 0], [1, 60], [158, 61], [80, 1], [81, 118]]])
+    for half in (1, 3):
+        f = img.astype(np.float32)
+        gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+        k = (2 * half + 1, 2 * half + 1)
+        a, b, d = (cv2.boxFilter(p, cv2.CV_64F, k, normalize=False) for p in (gx * gx, gx * gy, gy * gy))
+        c = np.rint(pts[:, 0]).astype(int)
+        r = np.rint(pts[:, 1]).astype(int)
+        a, b, d = a[r, c], b[r, c], d[r, c]
+        root = np.sqrt((0.5 * (a - d)) ** 2 + b * b)
+        mean = 0.5 * (a + d)
+        want = np.where(mean + root > 0, (mean - root) / np.maximum(mean + root, 1e-12), 0.0)
+        got = _corner_ratio(img, pts.astype(np.float32), half)
+        assert np.allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_patches_are_the_windows_moved_inside_the_image():
+    from planar_vo.frontend.features import _patches
+
+    img = np.arange(30 * 40, dtype=np.float32).reshape(30, 40)
+    pts = np.array([[0.2, 0.4], [39.0, 29.0], [20.4, 10.6], [2.0, 27.0]])
+    got = _patches(img, pts, 2)
+    for p, g in zip(pts, got):
+        c = int(np.clip(np.rint(p[0]), 2, 37))
+        r = int(np.clip(np.rint(p[1]), 2, 27))
+        assert np.array_equal(g, img[r - 2:r + 3, c - 2:c + 3])
