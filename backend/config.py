@@ -76,6 +76,12 @@ class BackendConfig:
     #: this floor (m/s^2) and ``motion_prior_accel``. A robot cruising at constant speed
     #: then carries its speed over a gap; one speeding up or braking keeps the looser prior.
     motion_prior_min_accel: float = 0.05
+    #: For the priors on steps in a gap (or next to one), the velocity changes of the fine
+    #: steps are taken at least this far apart (s), not between consecutive ones: consecutive
+    #: measured steps' changes are mostly their noise, and at that looseness a few partial
+    #: steps measured short pulled a whole gap's speed down with them
+    #: (:meth:`_GraphBuilder._gap_prior_accel`). 0: consecutive steps, as for the others.
+    motion_prior_gap_baseline_s: float = 0.5
     #: The same for the turn rate (deg/s^2): a heading weaving with a 1 m period at 0.5 m/s
     #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
     #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2 (the front-end's bridged guess uses the same 30).
@@ -241,7 +247,7 @@ class BackendConfig:
         for name in ("step_min_sigma_xy", "step_min_sigma_theta_deg", "manhattan_min_score", "prune_sigmas",
                      "wheel_odom_sigma_per_m", "wheel_odom_sigma_deg_per_m", "wheel_odom_sigma_per_rad",
                      "manhattan_instance_size", "closure_max_error_sigmas", "motion_prior_accel", "motion_prior_window",
-                     "motion_prior_min_accel",
+                     "motion_prior_min_accel", "motion_prior_gap_baseline_s",
                      "closure_min_sigma_xy",
                      "closure_min_sigma_theta_deg", "wall_spacing_m",
                      "lm_relative_error_tol", "lm_absolute_error_tol"):

@@ -376,6 +376,48 @@ def test_a_braking_base_is_not_held_to_a_cruise():
     assert err < 0.02
 
 
+
+def _gap_with_short_steps(short, **config) -> float:
+    """Length error (m) over a gap of 60 partial steps (x guessed at the cruise, 5 cm sigma)
+    in a cruise at 0.76 m/s and 10 Hz whose measured steps are stated and err at 3 mm; the
+    gap steps in ``short`` measured by a few points at half their length, stated at 12 mm."""
+    rng = np.random.default_rng(25)
+    truth = _wobbling_truth(np.full(160, 0.76))
+    gap = set(range(50, 110))
+    res = _gap_results(truth, gap, lambda k: 0.076, rng)
+    for k in range(1, len(res)):
+        st = res[k].step
+        pose, info = st.pose.copy(), st.information.copy()
+        if k not in gap:
+            pose[0] = se2_between(truth[k - 1], truth[k])[0] + rng.normal(0, 0.003)
+            info[0, 0] = 1 / 0.003 ** 2
+        else:
+            info[0, 0] = 1 / 0.05 ** 2
+        if k in short:
+            pose[0], info[0, 0] = 0.038, 1 / 0.012 ** 2
+        res[k] = FrameResult(k, res[k].stamp, Step(pose, info, st.status, 10), [])
+    g = PlanarPoseGraph(BackendConfig(manhattan=False, **config))
+    for r in res:
+        g.add_frame(r)
+    est = g.optimize()
+    return float(np.linalg.norm(est[115, :2] - est[45, :2]) - np.linalg.norm(truth[115, :2] - truth[45, :2]))
+
+
+def test_a_gap_is_not_pulled_down_by_two_short_steps_inside_it():
+    """The held-out lturn_s6107: two of a 60-step gap's partial steps measured by 3-4 points
+    at half their length (3 sigmas). With the prior's acceleration from consecutive measured
+    steps (mostly their noise, ~0.4 m/s^2) the gap's speed followed them and the gap came
+    out 45 cm short, where the steps themselves lose 7.6 cm; with velocity changes over 0.5 s
+    (``motion_prior_gap_baseline_s``) the prior holds the cruise. Without short steps both
+    keep the gap within 2 cm."""
+    short = (80, 95)
+    assert _gap_with_short_steps(short, motion_prior_gap_baseline_s=0.0) < -0.3
+    assert abs(_gap_with_short_steps(short)) < 0.08
+    assert abs(_gap_with_short_steps((80,))) < 0.03
+    assert abs(_gap_with_short_steps(())) < 0.025
+    assert abs(_gap_with_short_steps((), motion_prior_gap_baseline_s=0.0)) < 0.025
+
+
 # ------------------------------------------------------------ keyframe links, guesses
 def _results(steps, stamps=None):
     out = [FrameResult(0, 0.0, None)]
