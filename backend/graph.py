@@ -196,6 +196,14 @@ def _floored(information: np.ndarray, floor: np.ndarray) -> np.ndarray:
     return np.linalg.inv(cov)
 
 
+def _rms_velocity_change(t, v, n, i0, i1) -> float:
+    """m/s^2: the RMS rate of velocity change between the steps ``i0`` and ``i1`` (pairs of
+    indices) of velocities ``v`` at times ``t`` with noise variances ``n`` (all (K,)), each
+    pair weighted by the inverse of its noise."""
+    w = 1.0 / (n[i1] + n[i0])
+    return math.sqrt(float((w * (v[i1] - v[i0]) ** 2 / (t[i1] - t[i0]) ** 2).sum() / w.sum()))
+
+
 class _GraphBuilder:
     """Turns front-end results into new factors and initial values (shared by both solvers)."""
 
@@ -231,7 +239,7 @@ class _GraphBuilder:
         self._mp_weak: list[bool] = []
         self._mp_vel: list[tuple | None] = []
         self._mp_fine: tuple[list[int], list[int]] = ([], [])
-        self._mp_measured_fine: list[int] = []  # forward-fine steps an estimator measured (not weak)
+        self._mp_fine_estimated: list[int] = []  # forward-fine steps an estimator measured (not weak)
         self._mp_measured: list[int] = []  # the first three steps whose forward speed was measured
         self._mp_upto = 1               # the last frame whose velocity the prior ties
         self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
@@ -468,7 +476,7 @@ class _GraphBuilder:
             if vel is not None and vel[3][ax]:
                 self._mp_fine[ax].append(k)
         if vel is not None and vel[3][0] and not weak:
-            self._mp_measured_fine.append(k)
+            self._mp_fine_estimated.append(k)
         if len(self._mp_measured) < 3 and vel is not None and (not weak or math.sqrt(vel[2][0]) < 0.25 * abs(vel[1][0])):
             # the first steps whose forward speed was measured: by an estimator, or stated within 25 %
             self._mp_measured.append(k)
@@ -573,8 +581,7 @@ class _GraphBuilder:
             if len(fine) < 4:
                 continue
             t, v, n = (np.array(x) for x in zip(*fine))
-            w = 1.0 / (n[1:] + n[:-1])
-            a[ax] = math.sqrt(float((w * np.diff(v) ** 2 / np.diff(t) ** 2).sum() / w.sum()))
+            a[ax] = _rms_velocity_change(t, v, n, np.arange(len(t) - 1), np.arange(1, len(t)))
         return np.clip(np.maximum(a, self._gap_accel(k)), min(c.motion_prior_min_accel, c.motion_prior_accel),
                        c.motion_prior_accel)
 
@@ -594,7 +601,7 @@ class _GraphBuilder:
         of the few measured ones the turn came out 0.74 -> 1.21 % off. Sideways a weaving
         base's velocity turns with it, and a gap at the start of a run has no "before": both
         keep ``accel``."""
-        fine = self._mp_measured_fine
+        fine = self._mp_fine_estimated
         j = bisect.bisect_left(fine, k)
         if not 0 < j < len(fine):
             return accel
@@ -610,8 +617,7 @@ class _GraphBuilder:
             nxt = np.searchsorted(t, t + c.motion_prior_gap_baseline_s * (1.0 - 1e-6))
             i0 = np.flatnonzero(nxt < len(t))
             i0, i1 = (i0, nxt[i0]) if len(i0) >= 3 else (np.arange(len(t) - 1), np.arange(1, len(t)))
-            w = 1.0 / (n[i0] + n[i1])
-            a = math.sqrt(float((w * (v[i1] - v[i0]) ** 2 / (t[i1] - t[i0]) ** 2).sum() / w.sum()))
+            a = _rms_velocity_change(t, v, n, i0, i1)
         # The gap's own change of speed within a third of a sigma a step: held to its mean
         # acceleration at one sigma, the robust kernel found it cheaper to put a speed-up
         # into one step at the gap's end than to spread it (a 0.4 -> 0.8 m/s ramp, 51 cm off).

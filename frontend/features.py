@@ -177,7 +177,7 @@ def _corner_ratio(img: np.ndarray, pts: np.ndarray, half: int) -> np.ndarray:
         return np.zeros(0)
     # OpenCV's 3 x 3 Sobel gradients, summed over the window by a box filter, both with the
     # image mirrored at its border (BORDER_REFLECT_101), evaluated at the points only: the
-    # whole-image filters cost ~1 ms for the ~100 corners of a detection.
+    # whole-image filters cost ~3 ms for the ~100 corners of a detection, this ~0.4 ms.
     h, w = img.shape
     c = np.clip(np.rint(pts[:, 0]).astype(np.int64), 0, w - 1)
     r = np.clip(np.rint(pts[:, 1]).astype(np.int64), 0, h - 1)
@@ -188,13 +188,10 @@ def _corner_ratio(img: np.ndarray, pts: np.ndarray, half: int) -> np.ndarray:
     def at(dr, dc):  # (N, k, k) float32 image at the window pixels' neighbour (dr, dc)
         return img[_reflect101(rows + dr, h), _reflect101(cols + dc, w)].astype(np.float32)
 
-    left, right = at(-1, -1), at(-1, 1)
-    gx, gy = right - left, -(left + 2 * at(-1, 0) + right)
-    for dr, wgt in ((0, 2), (1, 1)):
-        left, right = at(dr, -1), at(dr, 1)
-        gx += wgt * (right - left)
-        if dr == 1:
-            gy += left + 2 * at(1, 0) + right
+    # Sobel: [1 2 1] across, [-1 0 1] along (integer-valued: exact in float32)
+    up_l, up_r, dn_l, dn_r = at(-1, -1), at(-1, 1), at(1, -1), at(1, 1)
+    gx = (up_r - up_l) + 2 * (at(0, 1) - at(0, -1)) + (dn_r - dn_l)
+    gy = (dn_l + 2 * at(1, 0) + dn_r) - (up_l + 2 * at(-1, 0) + up_r)
     a, b, d = ((p * q).sum((1, 2), dtype=np.float64) for p, q in ((gx, gx), (gx, gy), (gy, gy)))
     root = np.sqrt((0.5 * (a - d)) ** 2 + b * b)
     mean = 0.5 * (a + d)

@@ -376,7 +376,6 @@ def test_a_braking_base_is_not_held_to_a_cruise():
     assert err < 0.02
 
 
-
 def _gap_with_short_steps(short, **config) -> float:
     """Length error (m) over a gap of 60 partial steps (x guessed at the cruise, 5 cm sigma)
     in a cruise at 0.76 m/s and 10 Hz whose measured steps are stated and err at 3 mm; the
