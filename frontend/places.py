@@ -92,14 +92,13 @@ class Keyframe:
 
 # ------------------------------------------------------------------------ keyframes
 
-def _grid_select(kps, shape: tuple[int, int], config: PlaceConfig) -> list:
-    """At most ``orb_features`` keypoints, round-robin over a ``grid_cols`` x ``grid_rows``
-    grid, strongest first in each cell: the best of every cell, then the second best..."""
-    if len(kps) <= config.orb_features:
-        return list(kps)
+def _grid_select(pts: np.ndarray, resp: np.ndarray, shape: tuple[int, int], config: PlaceConfig) -> np.ndarray:
+    """Indices of at most ``orb_features`` keypoints (pixels ``pts`` (N, 2), responses
+    ``resp`` (N,)), round-robin over a ``grid_cols`` x ``grid_rows`` grid, strongest first
+    in each cell: the best of every cell, then the second best..."""
+    if len(pts) <= config.orb_features:
+        return np.arange(len(pts))
     h, w = shape
-    pts = np.array([k.pt for k in kps])
-    resp = np.array([k.response for k in kps])
     cell = (np.minimum((pts[:, 1] * config.grid_rows / h).astype(int), config.grid_rows - 1) * config.grid_cols
             + np.minimum((pts[:, 0] * config.grid_cols / w).astype(int), config.grid_cols - 1))
     order = np.argsort(-resp, kind="stable")
@@ -108,8 +107,7 @@ def _grid_select(kps, shape: tuple[int, int], config: PlaceConfig) -> list:
     cs = c[grouped]
     rank = np.empty(len(c), np.int64)
     rank[grouped] = np.arange(len(c)) - np.searchsorted(cs, cs, side="left")
-    keep = order[np.lexsort((np.arange(len(c)), rank))[:config.orb_features]]
-    return [kps[i] for i in keep]
+    return order[np.lexsort((np.arange(len(c)), rank))[:config.orb_features]]
 
 
 #: ORB's pyramid scale factor (OpenCV's default, stated so the noise model can use it).
@@ -127,19 +125,24 @@ def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, conf
         orb = cv2.ORB_create(nfeatures=3 * config.orb_features, scaleFactor=ORB_SCALE, fastThreshold=threshold)
         kps = orb.detect(gray, None)
         if kps:
-            px = np.array([k.pt for k in kps], np.float32)
-            P = lift(px, undistort(px, intrinsics), depth, *lift_args)
-            kps = [k for k, ok in zip(kps, np.isfinite(P[:, 2])) if ok]
+            # KeyPoint_convert: the same float32 pixels as reading k.pt, without a Python
+            # loop over the ~3000 keypoints (a quarter of a keyframe's time)
+            px = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+            ok = np.flatnonzero(np.isfinite(lift(px, undistort(px, intrinsics), depth, *lift_args)[:, 2]))
+            kps, px = [kps[i] for i in ok], px[ok]
         # plain walls: at the default threshold a low-contrast frame gave 3-8 keypoints
         # where a threshold of 4 gave 600-800 (what the odometry's corners track there)
         if len(kps) >= config.orb_features or threshold <= config.orb_min_fast_threshold:
             break
         threshold = max(threshold // 2, config.orb_min_fast_threshold)
-    kps, desc = orb.compute(gray, _grid_select(kps, gray.shape, config))
+    if kps:
+        resp = np.array([k.response for k in kps])
+        kps = [kps[i] for i in _grid_select(px.astype(np.float64), resp, gray.shape, config)]
+    kps, desc = orb.compute(gray, kps)
     if desc is None or not kps:
         return (np.zeros((0, 2), np.float32), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),
                 np.zeros(0, np.uint8))
-    px = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+    px = cv2.KeyPoint_convert(kps).reshape(-1, 2)
     xy = undistort(px, intrinsics)
     octave = np.array([k.octave for k in kps], np.uint8)
     return px, xy, lift(px, xy, depth, *lift_args), desc, octave
