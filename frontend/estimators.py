@@ -826,7 +826,10 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     ``info.covariance`` (3, 3) over (yaw, t_x, t_z) from the whitened inlier residuals.
     ``motion`` is None when the 2-point stage fails or no inlier has valid depth. With
     ``options.refine_levelling`` and a shared levelling error found, the scale and the joint
-    refinement work in the corrected frame (images and 3-D points rotated by ``T^T``).
+    refinement work in the corrected frame (images and 3-D points rotated by ``T^T``). A fit
+    that the sideways prior (``options.lateral_slip``) pins near ``t = 0``
+    (:func:`_collapsed`) is refitted as a pure rotation: ``info.status`` says
+    ``"pure_rotation"`` and ``info.extra["direction_collapsed_m"]`` the length it started at.
     """
     opt = options or MetricTwoPointOptions()
     x1 = _as_points("x1", x1, 2)
@@ -843,16 +846,37 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
         # the levelling-error model won: fix scale and refine in the corrected frame
         T = levelling_tilt(*info.extra["levelling_error"])
         x1, x2, P1, P2 = _untilt(x1, T), _untilt(x2, T), P1 @ T, P2 @ T
-    inl = info.inliers
     # the yaw of the image matches alone, before the depths join the fit (a caller can
     # check that a few depths did not bend it)
     info.extra["epipolar_yaw"] = float(theta)
-    scale = _metric_scale(theta, t_dir, info, P1, P2, opt)
-    if scale is None:
+    fit = _metric_fit(theta, t_dir, info, x1, x2, P1, P2, opt)
+    if fit is not None and fit[2] and info.status == OK and _collapsed(fit[0], fit[1]):
+        # The images' direction and the wheeled base's heading disagree, and the fit met
+        # them at t ~ 0, pinned there by both (on a held-out hall 17 mm steps measured as
+        # 0 +- 1.5 mm, 2-point status ok between pure rotations): a pure rotation the
+        # direction test let through. Refit as one: the depths give the translation.
+        info.extra["direction_collapsed_m"] = float(math.hypot(fit[1][0], fit[1][2]))
+        info.status = PURE_ROTATION
+        fit = _metric_fit(theta, t_dir, info, x1, x2, P1, P2, opt)
+    if fit is None:
         info.status = NO_DEPTH
         return None, info
+    p = fit[0]
+    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
+                          pure_rotation=info.status == PURE_ROTATION)
+    return motion, info
+
+
+def _metric_fit(theta: float, t_dir, info: EstimateInfo, x1, x2, P1, P2, opt: MetricTwoPointOptions):
+    """Scale from depth and the joint refinement of :func:`estimate_planar_motion_2pt_metric`:
+    ``(p (3,) = (yaw, t_x, t_z), t0 (3,) the depths' start, prior used)``, or None when no
+    inlier's depth agrees. Fills ``info``'s refinement fields, covariance and scale inliers."""
+    scale = _metric_scale(theta, t_dir, info, P1, P2, opt)
+    if scale is None:
+        return None
     t0, Q1, Q2, inv_sig, scale_inl = scale
     w_img = 1.0 / (opt.pixel_sigma / opt.focal_px)
+    inl = info.inliers
     # Sampson terms stay well defined for small non-zero t (they are scale invariant)
     sub = _Matches(x1[inl], x2[inl])
     fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
@@ -873,9 +897,19 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     info.cost = cost
     info.covariance = _metric_covariance(J, fun(p, False)[0], len(Q1), n_prior, p)
     info.scale_inliers = scale_inl
-    motion = PlanarMotion(float(wrap_angle(p[0])), np.array([p[1], 0.0, p[2]]),
-                          pure_rotation=info.status == PURE_ROTATION)
-    return motion, info
+    return p, t0, n_prior > 0
+
+
+#: A fit with the sideways prior whose translation ends below this fraction of the depths'
+#: start has met the prior at t ~ 0 (:func:`_collapsed`).
+_COLLAPSE_RATIO = 0.25
+
+
+def _collapsed(p: np.ndarray, t0: np.ndarray) -> bool:
+    """True when the refined translation ``p[1:]`` is below ``_COLLAPSE_RATIO`` of the length
+    the depths started it at (``t0`` (3,)): the scale-free image rows pin the direction, the
+    sideways prior the heading, and when the two disagree only ``t = 0`` satisfies both."""
+    return math.hypot(p[1], p[2]) < _COLLAPSE_RATIO * math.hypot(t0[0], t0[2])
 
 
 def _metric_scale(theta: float, t_dir, info: EstimateInfo, P1, P2, opt: MetricTwoPointOptions):

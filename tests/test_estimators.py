@@ -468,3 +468,31 @@ def test_metric_two_point_covariance_is_taken_at_the_length_the_depths_allow():
     for direction in (0.0, 0.9, -0.6):  # rad off the forward axis
         near_zero = sigmas(np.array([yaw, 0.001 * math.sin(direction), 0.001 * math.cos(direction)]))
         assert np.all(near_zero >= 0.4 * at_truth), (near_zero, at_truth)
+
+
+def test_a_fit_the_sideways_prior_pins_at_zero_is_refitted_as_a_pure_rotation():
+    """Three frames of a held-out low-texture hall (randomized scene 6204, frames 198, 227 and
+    232; ``data/two_point_collapse_hall.npz``, the front-end's own inputs): corners 3 m away
+    and more, 17 mm forward steps. RANSAC called their direction observable and found it
+    mostly sideways; the wheeled base's sideways prior then met the images' direction at
+    ``t = 0``, and the steps were measured 0-1 mm long at a stated 1-2 mm (10-12 sigmas off
+    the truth). Refitted as pure rotations, the depths give the translation: within 3 of its
+    stated sigmas of the truth forward, and never stated tighter than 3 mm."""
+    from pathlib import Path
+
+    from planar_vo.frontend.odometry import lev_motion_to_base_step
+
+    d = np.load(Path(__file__).resolve().parents[1] / "data" / "two_point_collapse_hall.npz")
+    m_base_lev = d["mount_se2"]
+    opt = MetricTwoPointOptions(focal_px=540.7, max_error_px=1.5, lateral_slip=0.03, lateral_floor_m=0.0005,
+                                mount_se2=tuple(float(v) for v in m_base_lev))
+    for k in (198, 227, 232):
+        m, est = estimate_planar_motion_2pt_metric(d[f"f{k}_x1"], d[f"f{k}_x2"], d[f"f{k}_P1"], d[f"f{k}_P2"], opt)
+        assert m is not None and est.status == "pure_rotation", k
+        assert est.extra["direction_collapsed_m"] > 0.015       # where the depths started it (m)
+        pose, cov = lev_motion_to_base_step(m.yaw, m.t, est.covariance, m_base_lev)
+        gt = d[f"f{k}_gt_base_step"]
+        sx = math.sqrt(cov[0, 0])
+        assert sx > 0.003, (k, sx)
+        assert abs(pose[0] - gt[0]) < 3.0 * sx, (k, pose[0], gt[0], sx)
+        assert abs(pose[0]) > 0.005, (k, pose[0])               # not the collapsed 0-1 mm
