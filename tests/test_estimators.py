@@ -474,10 +474,11 @@ def test_a_fit_the_sideways_prior_pins_at_zero_is_refitted_as_a_pure_rotation():
     """Three frames of a held-out low-texture hall (randomized scene 6204, frames 198, 227 and
     232; ``data/two_point_collapse_hall.npz``, the front-end's own inputs): corners 3 m away
     and more, 17 mm forward steps. RANSAC called their direction observable and found it
-    mostly sideways; the wheeled base's sideways prior then met the images' direction at
-    ``t = 0``, and the steps were measured 0-1 mm long at a stated 1-2 mm (10-12 sigmas off
-    the truth). Refitted as pure rotations, the depths give the translation: within 3 of its
-    stated sigmas of the truth forward, and never stated tighter than 3 mm."""
+    mostly sideways, with a yaw 0.19-0.27 deg off; the wheeled base's sideways prior then
+    met the images' direction at ``t = 0``, and the steps were measured 0-1 mm long at a
+    stated 1-2 mm (10-12 sigmas off the truth). Refitted as pure rotations -- the yaw of
+    the rotation model, the translation of the depths at that yaw -- the yaw is within
+    0.05 deg, and the translation within 3 of its stated sigmas, never stated below 3 mm."""
     from pathlib import Path
 
     from planar_vo.frontend.odometry import lev_motion_to_base_step
@@ -492,7 +493,7 @@ def test_a_fit_the_sideways_prior_pins_at_zero_is_refitted_as_a_pure_rotation():
         assert est.extra["direction_collapsed_m"] > 0.015       # where the depths started it (m)
         pose, cov = lev_motion_to_base_step(m.yaw, m.t, est.covariance, m_base_lev)
         gt = d[f"f{k}_gt_base_step"]
-        sx = math.sqrt(cov[0, 0])
-        assert sx > 0.003, (k, sx)
-        assert abs(pose[0] - gt[0]) < 3.0 * sx, (k, pose[0], gt[0], sx)
-        assert abs(pose[0]) > 0.005, (k, pose[0])               # not the collapsed 0-1 mm
+        assert abs(math.degrees(pose[2] - gt[2])) < 0.05, (k, math.degrees(pose[2]), math.degrees(gt[2]))
+        s = np.sqrt(np.diag(cov))
+        assert s[0] > 0.003, (k, s)
+        assert np.all(np.abs(pose[:2] - gt[:2]) < 3.0 * s[:2]), (k, pose, gt, s)
