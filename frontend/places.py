@@ -135,7 +135,7 @@ def _orb(gray: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics, conf
         if len(kps) >= config.orb_features or threshold <= config.orb_min_fast_threshold:
             break
         threshold = max(threshold // 2, config.orb_min_fast_threshold)
-    if kps:
+    if len(kps) > config.orb_features:
         resp = np.array([k.response for k in kps])
         kps = [kps[i] for i in _grid_select(px.astype(np.float64), resp, gray.shape, config)]
     kps, desc = orb.compute(gray, kps)
