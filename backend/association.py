@@ -112,6 +112,9 @@ class ManhattanAssociator:
                 continue
             var = max(sigma * sigma, self._min_var)
             j, measured = self._best_frame(yaw, var, used)
+            if j is None and self._seen_here(yaw, used):
+                out.ignored += 1
+                continue
             if j is not None:
                 used.add(j)
                 self._update(j, measured, var)
@@ -156,6 +159,17 @@ class ManhattanAssociator:
             self.drift_associations += 1
             return nearest, nearest_meas
         return best, best_meas
+
+    def _seen_here(self, yaw: float, used: set[int]) -> bool:
+        """Whether ``yaw`` lies within ``same_frame_deg`` of a frame this pose already observed.
+
+        A second wall group a few degrees from the dominant one (a door frame, a box, a
+        wall bent by depth noise) is the same local frame seen twice, not a new one; with
+        one link per frame and pose it would otherwise start a candidate, and three such
+        groups a few poses apart made a frame (straight_s6300, docs/bench).
+        """
+        theta = self._x[0]
+        return any(abs(_quarter(self._x[j + 1] - theta - yaw)) <= self._same_frame for j in used)
 
     def _update(self, j: int, measured: float, var: float) -> None:
         """Robust Kalman update with ``z = m_j - theta`` (Sec. 2.1's alignment made a filter)."""

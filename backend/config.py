@@ -31,7 +31,8 @@ class BackendConfig:
     ``gate_max_deg``. Observations that fit no frame start (or extend) a candidate frame;
     a candidate becomes a graph variable once ``new_frame_min_observations`` mutually
     consistent observations arrived within ``new_frame_window`` frames (so one stray
-    wall does not create a frame).
+    wall does not create a frame). An observation within ``same_frame_deg`` of a frame
+    the same pose already observed is that frame seen twice and is ignored.
     """
 
     # --- prior on the first pose (odom = base at the first frame)

@@ -336,6 +336,26 @@ def test_drifted_heading_stays_in_one_manhattan_frame(online):
     assert split.stats["manhattan_frames"] >= 2
 
 
+def test_a_second_wall_group_a_few_degrees_off_is_not_a_new_frame():
+    """Mechanism 3, seen on an unseen straight corridor: at some poses a second wall group
+    (score just above ``manhattan_min_score``) lies 3-6 deg from the dominant one. The
+    corridor frame is already linked at that pose, so it must not start a candidate: the
+    graph keeps one frame and the heading stays on the truth."""
+    truth, results = _drifting_corridor(drift_deg=0.0, gap=(0, 0))
+    for k in (120, 123, 126, 150, 152, 154):  # within new_frame_window: 3 would make a frame
+        dominant = results[k].manhattan[0]
+        off = math.radians(3.0 + (k % 4))
+        results[k].manhattan.append(ManhattanObservation(dominant.yaw + off, math.radians(0.4),
+                                                         0.09, 1))
+    graph = PlanarPoseGraph()
+    for r in results:
+        graph.add_frame(r)
+    poses = graph.optimize()
+    assert graph.stats["manhattan_frames"] == 1
+    err = np.degrees([g.wrap_angle(a) for a in poses[:, 2] - truth[:, 2]])
+    assert np.max(np.abs(err)) < 0.1
+
+
 # ------------------------------------------------------ 4. textureless is announced
 def test_textureless_corridor_is_announced_not_reported_as_success(tmp_path, capsys):
     """Mechanism 4: with no texture and the end wall out of range, the translation is
