@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -509,6 +510,12 @@ class PlanarOdometry:
                                          yaw_var=self._kf_yaw[2] if self._kf_yaw and self._kf_guessed is not None else None)
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
+
+    def look_ahead(self, frames: Iterable[RGBDFrame]) -> None:
+        """Show the odometry the first frames of the run before :meth:`process` of any:
+        the plane detector learns the sensor's range from their depth
+        (:meth:`PlaneDetector.look_ahead`), which the first frames' walls need."""
+        self._planes.look_ahead(self._check(f)[1] for f in frames)
 
     def track(self, frame: RGBDFrame) -> None:
         """Run the feature stage of :meth:`process` for ``frame`` now, ahead of it.

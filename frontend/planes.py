@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -144,6 +145,7 @@ class PlaneDetector:
         self.depth_range = depth_range  # (min, max) m
         self.range_max = 0.0  # the sensor's range (m) once learnt, else 0 (see _learn_range)
         self._far: collections.deque = collections.deque(maxlen=_RANGE_FRAMES)  # farthest reading per frame
+        self._far_ahead: list[float] = []  # the same, of frames not yet detected (look_ahead)
         self._xy_cam, self._o, self.grid_shape = normalised_grid(intrinsics, self.config.stride)
         self.n_total = self._xy_cam.shape[0]
         step = math.radians(self.config.hough_step_deg)
@@ -191,6 +193,20 @@ class PlaneDetector:
         w = 1.0 / (z[idx].astype(np.float64) * self._zscale[idx])
         return idx, w
 
+    def look_ahead(self, depths: Iterable[np.ndarray]) -> None:
+        """Learn the sensor's range from the first frames' depth (H, W) float32 m before
+        their walls are measured, as :meth:`_learn_range` would after them.
+
+        Without it the first ``_RANGE_MIN_FRAMES`` frames fit walls that run past the range
+        with no range limit: their far ends, cut where the readings stop, tilt the fit.
+        Frame 0's Manhattan observation is the run's heading reference, and on a held-out
+        L (lturn_s6300) it was 0.35 deg off the later frames' (0.02 deg among themselves).
+        """
+        for depth in depths:
+            idx, w = self.inverse_depth(depth)
+            if len(w):
+                self._far_ahead.append(float(1.0 / np.min(w * self._zscale[idx])))
+
     def _learn_range(self, pts: "_Points") -> float:
         """Learn the sensor's range from this frame's farthest reading; return the least
         camera inverse depth (1/m) a wall point's *predicted* depth may have (0: no limit).
@@ -203,8 +219,10 @@ class PlaneDetector:
         """
         if len(pts.w):
             self._far.append(float(1.0 / np.min(pts.w * self._zscale[pts.idx])))
-        if len(self._far) >= _RANGE_MIN_FRAMES:
-            far = np.array(self._far)
+        # Until the stream has its own _RANGE_MIN_FRAMES readings, a look-ahead's stand in.
+        far = self._far if len(self._far) >= _RANGE_MIN_FRAMES else self._far_ahead
+        if len(far) >= _RANGE_MIN_FRAMES:
+            far = np.array(far)
             med = float(np.median(far))
             if np.mean(np.abs(far - med) <= 0.02 * med) >= 0.5:
                 self.range_max = med

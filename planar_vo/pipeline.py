@@ -294,6 +294,33 @@ def _loop_closer(log, odometry, graph, config: RunConfig) -> LoopCloser | None:
                       frontend=config.frontend)
 
 
+#: Frames the odometry sees before it processes the first (PlanarOdometry.look_ahead): the
+#: plane detector needs ten to learn the sensor's range (planes._RANGE_MIN_FRAMES).
+LOOK_AHEAD_FRAMES = 10
+
+
+def _shown_ahead(frames, odometry: PlanarOdometry, n: int = LOOK_AHEAD_FRAMES):
+    """``frames``, unchanged, after the odometry has seen the first ``n`` of them
+    (:meth:`PlanarOdometry.look_ahead`). A log cut short within them still yields the
+    frames read before the cut, then raises."""
+    it = iter(frames)
+    first, cut = [], None
+    try:
+        for frame in it:
+            first.append(frame)
+            if len(first) == n:
+                break
+    except PartialResult as exc:
+        cut = exc
+    odometry.look_ahead(first)
+    first.reverse()
+    while first:  # dropped as they go: the run holds no frame longer than without this
+        yield first.pop()
+    if cut is not None:
+        raise cut
+    yield from it
+
+
 def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, clock: _Stopwatch,
                     progress: bool) -> _FrameLoop:
     """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph (with
@@ -312,7 +339,7 @@ def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, cloc
     t_wait = time.perf_counter()
     try:
         with reader:
-            for frame in reader:
+            for frame in _shown_ahead(reader, odometry):
                 t0, c0 = time.perf_counter(), time.thread_time()
                 timings["read_wait"] += t0 - t_wait
                 result = odometry.process(frame)

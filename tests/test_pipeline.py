@@ -49,6 +49,26 @@ def test_run_is_accurate_on_lturn(batch_run):
     assert ev["smoothed"]["ate_rmse_m"] < 0.05
 
 
+def test_the_odometry_sees_the_run_s_first_ten_frames_ahead(lturn_log, tmp_path, monkeypatch):
+    """The plane detector learns the sensor's range before frame 0's walls
+    (PlanarOdometry.look_ahead): it is shown the run's own first ten frames, with the
+    run's start and stride, before the first is processed."""
+    from planar_vo.frontend.odometry import PlanarOdometry
+
+    seen, processed = [], []
+    look_ahead, process = PlanarOdometry.look_ahead, PlanarOdometry.process
+    monkeypatch.setattr(PlanarOdometry, "look_ahead",
+                        lambda self, frames: look_ahead(self, [seen.append((f.index, len(processed))) or f
+                                                               for f in frames]))
+    monkeypatch.setattr(PlanarOdometry, "process",
+                        lambda self, frame: processed.append(frame.index) or process(self, frame))
+    code = main(["run", str(lturn_log), "--out", str(tmp_path / "run"), "--quiet", "--no-plot",
+                 "--start", "5", "--stride", "2", "--stop", "60"])
+    assert code == 0
+    assert [i for i, _ in seen] == list(range(5, 25, 2)) and all(n == 0 for _, n in seen)
+    assert processed[:10] == list(range(5, 25, 2))
+
+
 def test_evaluate_command(batch_run, lturn_log, capsys):
     _, out = batch_run
     assert main(["evaluate", str(out), "--gt", str(lturn_log.with_suffix(".gt.tum"))]) == 0
@@ -88,14 +108,17 @@ def test_interrupt_keeps_results(lturn_log, tmp_path, monkeypatch, capsys):
     assert "partial run" in capsys.readouterr().out
 
 
-def test_truncated_log_keeps_results(lturn_log, tmp_path, capsys):
+@pytest.mark.parametrize("fraction,frames", [(0.6, (30, 100)), (0.1, (2, 10))])
+def test_truncated_log_keeps_results(lturn_log, tmp_path, capsys, fraction, frames):
+    """Cut anywhere, the frames before the cut are kept: also within the first ten, which
+    the odometry is shown ahead (``_shown_ahead``)."""
     data = lturn_log.read_bytes()
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(data[: int(len(data) * 0.6)])
+    cut.write_bytes(data[: int(len(data) * fraction)])
     code = main(["run", str(cut), "--out", str(tmp_path / "run"), "--quiet", "--no-plot"])
     assert code == 3
     n = len(read_tum_trajectory(tmp_path / "run" / "smoothed.tum"))
-    assert 30 <= n < 100
+    assert frames[0] <= n < frames[1]
     r = json.loads((tmp_path / "run" / "report.json").read_text())
     assert r["partial"] and "byte" in r["stop_reason"]
 

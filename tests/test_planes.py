@@ -166,6 +166,31 @@ def test_tum_sample_planes():
     assert n >= 9
 
 
+@pytest.mark.parametrize("yaw_deg", [3.0, -5.0])
+def test_first_frame_walls_are_fitted_within_the_range_learnt_ahead(yaw_deg):
+    """An end wall standing just past the sensor's range (4.8 m, readings stop at 4.5 m)
+    shows only as the near readings of its noise: fitted, it leans ~0.5 deg. Until the
+    range is learnt (ten frames) the detector cannot leave it out, and frame 0's
+    Manhattan observation is the run's heading reference (an unseen L ended 0.25 deg off
+    from it). ``look_ahead`` over the first ten frames' depth learns the range before
+    frame 0's walls are fitted."""
+    pitch, roll = math.radians(17.0), math.radians(-2.4)
+    R = g.levelling_rotation(pitch, roll)
+    yaw = math.radians(yaw_deg)
+    depths = [raycast(K, pitch, roll, corridor(yaw, end=4.8), noise=0.0015, rng=np.random.default_rng(k),
+                      max_depth=4.5) for k in range(10)]
+
+    def errors(det):
+        return [abs(math.degrees(float(g.wrap_quarter(w.yaw - yaw)))) for w in det.detect(depths[0]).walls]
+
+    assert max(errors(PlaneDetector(K, R_lev_cam=R))) > 0.3  # the mechanism
+    ahead = PlaneDetector(K, R_lev_cam=R)
+    ahead.look_ahead(depths)
+    err = errors(ahead)
+    assert ahead.range_max == pytest.approx(4.5, abs=0.01)
+    assert len(err) == 2 and max(err) < 0.05, err
+
+
 # --------------------------------------------------------------------- wall widths
 def raycast_rects(K, pitch, roll, rects, floor_h, max_depth=8.0):
     """Depth (H, W) float32 of vertical rectangles over a floor ``floor_h`` m below the
