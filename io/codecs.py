@@ -92,12 +92,21 @@ def encode_color(bgr: np.ndarray, encoding: str, *, jpeg_quality: int = 90,
     return EncodedImage(True, img.tobytes(), encoding=encoding, step=img.strides[0])
 
 
-def decode_raw_color(encoding: str, height: int, width: int, step: int, data: bytes) -> np.ndarray:
-    """Raw colour payload -> (H, W, 3) uint8 BGR (a new, writable array)."""
+#: Raw colour encoding -> conversion to one intensity channel (None: it is one already).
+_RAW_TO_GRAY = {"bgr8": cv2.COLOR_BGR2GRAY, "8UC3": cv2.COLOR_BGR2GRAY, "rgb8": cv2.COLOR_RGB2GRAY,
+                "bgra8": cv2.COLOR_BGRA2GRAY, "rgba8": cv2.COLOR_RGBA2GRAY, "mono8": None, "8UC1": None}
+
+
+def decode_raw_color(encoding: str, height: int, width: int, step: int, data: bytes,
+                     gray: bool = False) -> np.ndarray:
+    """Raw colour payload -> (H, W, 3) uint8 BGR, or (H, W) uint8 intensity if ``gray``
+    (a new, writable array either way)."""
     if encoding not in _RAW_COLOR:
         raise UnsupportedEncoding(
             f"colour encoding '{encoding}' is not supported (use one of {sorted(_RAW_COLOR)})")
     channels, conversion = _RAW_COLOR[encoding]
+    if gray:
+        conversion = _RAW_TO_GRAY[encoding]
     img = _rows(data, height, width * channels, step, np.dtype(np.uint8), encoding)
     img = img.reshape(height, width, channels) if channels > 1 else img
     if conversion is None:
@@ -105,9 +114,15 @@ def decode_raw_color(encoding: str, height: int, width: int, step: int, data: by
     return cv2.cvtColor(img, conversion)
 
 
-def decode_compressed_color(data: bytes) -> np.ndarray:
-    """JPEG/PNG payload -> (H, W, 3) uint8 BGR."""
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+def decode_compressed_color(data: bytes, gray: bool = False) -> np.ndarray:
+    """JPEG/PNG payload -> (H, W, 3) uint8 BGR, or (H, W) uint8 intensity if ``gray``.
+
+    ``gray`` decodes the JPEG's luma plane directly, without the colour conversion and
+    its reverse (about 2.7 -> 1.1 ms for a 960x540 frame); it differs from
+    ``cv2.cvtColor(bgr, COLOR_BGR2GRAY)`` by the rounding of the two conversions.
+    """
+    flag = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), flag)
     if img is None:
         raise DecodeError(f"colour payload of {len(data)} bytes is not a decodable JPEG/PNG")
     return img

@@ -338,8 +338,9 @@ class McapRGBDLog(RGBDLog):
 
     def _decode_color(self, img: m.ImageMessage) -> np.ndarray:
         if img.raw:
-            return decode_raw_color(img.encoding, img.height, img.width, img.step, img.data)
-        return decode_compressed_color(img.data)
+            return decode_raw_color(img.encoding, img.height, img.width, img.step, img.data,
+                                    gray=self.color_mode == "gray")
+        return decode_compressed_color(img.data, gray=self.color_mode == "gray")
 
     def _decode_depth(self, img: m.ImageMessage) -> np.ndarray:
         if img.raw:

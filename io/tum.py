@@ -126,7 +126,8 @@ class TumRGBDLog(RGBDLog):
         yield from pairer.finish()
 
     def _read_color(self, name: str) -> np.ndarray | None:
-        return cv2.imread(str(self.path / name), cv2.IMREAD_COLOR)
+        flag = cv2.IMREAD_GRAYSCALE if self.color_mode == "gray" else cv2.IMREAD_COLOR
+        return cv2.imread(str(self.path / name), flag)
 
     def _read_depth(self, name: str) -> np.ndarray | None:
         raw = cv2.imread(str(self.path / name), cv2.IMREAD_UNCHANGED)

@@ -166,6 +166,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     clock = _Stopwatch()
     prepared = _prepare_outputs_in_background(config)
     with open_input(log_path, config) as log:
+        log.set_color_mode("gray")  # the odometry and loop closure read intensity only
         odometry, graph = _level(log, config)
         wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
         closer = _loop_closer(log, odometry, graph, config)

@@ -44,6 +44,32 @@ def test_jpeg_close_to_original():
     assert np.abs(out.astype(int) - smooth).mean() < 3.0
 
 
+@pytest.mark.parametrize("enc", ["png", "jpeg", "bgr8", "rgb8", "bgra8", "mono8"])
+def test_gray_decode_is_the_intensity_of_the_colour_decode(images, enc):
+    """``gray=True`` (what the pipeline reads) gives (H, W) uint8: the BGR decode converted
+    to grey, exactly for raw payloads, to libpng's rounding (1 level) for PNG; a JPEG's
+    luma plane, read directly, differs only where the colour decode clipped a pixel
+    (on the renders and the demo: mean 0.001 level, one pixel in 10^4 beyond 1)."""
+    bgr, _ = images
+    if enc == "jpeg":  # a smooth image: JPEG's own loss is not under test here
+        yy, xx = np.mgrid[0:30, 0:40]
+        bgr = np.stack([(xx * 3 + yy * ch) % 256 for ch in (1, 2, 3)], -1).astype(np.uint8)
+    if enc == "bgra8":
+        data = np.dstack([bgr, np.full(bgr.shape[:2], 255, np.uint8)]).tobytes()
+        colour, out = (c.decode_raw_color("bgra8", 30, 40, 160, data, gray=g) for g in (False, True))
+    else:
+        e = c.encode_color(bgr, enc)
+        decode = ((lambda g: c.decode_raw_color(e.encoding, 30, 40, e.step, e.data, gray=g)) if e.raw
+                  else (lambda g: c.decode_compressed_color(e.data, gray=g)))
+        colour, out = decode(False), decode(True)
+    assert out.shape == (30, 40) and out.dtype == np.uint8 and out.flags.writeable
+    diff = np.abs(out.astype(int) - cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))
+    if enc == "jpeg":
+        assert diff.mean() < 0.1 and np.mean(diff <= 1) > 0.99
+    else:
+        assert diff.max() <= (1 if enc == "png" else 0)
+
+
 def test_raw_rows_with_padding_and_big_endian():
     rng = np.random.default_rng(2)
     mm = rng.integers(0, 65536, (5, 7)).astype(">u2")

@@ -35,6 +35,28 @@ CASES = [(p, c, d) for p in ("ros2", "foxglove")
                       ("mono8", "png"))]
 
 
+@pytest.mark.parametrize("color_enc", ["png", "jpeg", "rgb8", "mono8"])
+def test_gray_color_mode_gives_the_intensity(tmp_path, color_enc):
+    """What the pipeline reads (``set_color_mode("gray")``): (H, W) uint8 frames, the
+    intensity of the colour frames, the same depth and count."""
+    import cv2
+
+    path = write_log(tmp_path / "log.mcap", "ros2", color_enc, "png")
+    with open_log(path) as log:
+        colour = list(log.frames())
+    with open_log(path) as log:
+        log.set_color_mode("gray")
+        grey = list(log.frames())
+        with pytest.raises(ValueError, match="color mode"):
+            log.set_color_mode("rgb")
+    assert len(grey) == len(colour) == len(FRAMES)
+    for g, f in zip(grey, colour):
+        assert g.color.shape == f.color.shape[:2] and g.color.dtype == np.uint8
+        diff = np.abs(g.color.astype(int) - cv2.cvtColor(f.color, cv2.COLOR_BGR2GRAY))
+        assert diff.mean() < 0.5 if color_enc == "jpeg" else diff.max() <= 1
+        np.testing.assert_array_equal(g.depth, f.depth)
+
+
 @pytest.mark.parametrize("profile,color_enc,depth_enc", CASES)
 def test_roundtrip(tmp_path, profile, color_enc, depth_enc):
     path = write_log(tmp_path / "log.mcap", profile, color_enc, depth_enc)

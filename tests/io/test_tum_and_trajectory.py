@@ -39,6 +39,18 @@ def test_tum_sample_reads_like_the_benchmark(sample_frames):
                                atol=1e-12)
 
 
+def test_tum_gray_color_mode(sample_frames):
+    """The pipeline reads TUM colour PNGs as intensity: libpng's conversion, within 1 level."""
+    with open_log(SAMPLE) as log:
+        log.set_color_mode("gray")
+        grey = list(log.frames())
+    frames = sample_frames[0]
+    assert len(grey) == len(frames)
+    for g, f in zip(grey, frames):
+        assert g.color.shape == f.color.shape[:2]
+        assert np.abs(g.color.astype(int) - cv2.cvtColor(f.color, cv2.COLOR_BGR2GRAY)).max() <= 1
+
+
 @pytest.mark.parametrize("profile", ["ros2", "foxglove"])
 def test_convert_roundtrip_is_bit_exact(sample_frames, tmp_path, run_cli, profile):
     frames, k, gt, _ = sample_frames
