@@ -205,7 +205,12 @@ class PlaneDetector:
         for depth in depths:
             idx, w = self.inverse_depth(depth)
             if len(w):
-                self._far_ahead.append(float(1.0 / np.min(w * self._zscale[idx])))
+                self._far_ahead.append(self._farthest(idx, w))
+
+    def _farthest(self, idx: np.ndarray, w: np.ndarray) -> float:
+        """The farthest camera depth (m) among grid points ``idx`` with levelled inverse
+        depths ``w`` (non-empty; see :meth:`inverse_depth`)."""
+        return float(1.0 / np.min(w * self._zscale[idx]))
 
     def _learn_range(self, pts: "_Points") -> float:
         """Learn the sensor's range from this frame's farthest reading; return the least
@@ -218,7 +223,7 @@ class PlaneDetector:
         median farthest depth: it is that median (and stays once set).
         """
         if len(pts.w):
-            self._far.append(float(1.0 / np.min(pts.w * self._zscale[pts.idx])))
+            self._far.append(self._farthest(pts.idx, pts.w))
         # Until the stream has its own _RANGE_MIN_FRAMES readings, a look-ahead's stand in.
         far = self._far if len(self._far) >= _RANGE_MIN_FRAMES else self._far_ahead
         if len(far) >= _RANGE_MIN_FRAMES:

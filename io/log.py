@@ -122,7 +122,8 @@ class RGBDLog(ABC):
     def set_color_mode(self, mode: str) -> None:
         """``"gray"``: decode only the intensity of the colour images, for consumers that
         use nothing else (the odometry and loop closure): a JPEG's luma plane is read
-        without the colour conversion, 40 % of the decode. ``"bgr"``: full colour."""
+        without the colour conversion (1.1 against 2.4 + 0.4 ms for BGR and ``cvtColor``
+        on a 960x540 frame). ``"bgr"``: full colour."""
         if mode not in ("bgr", "gray"):
             raise ValueError(f"color mode must be 'bgr' or 'gray', got {mode!r}")
         self.color_mode = mode
