@@ -612,7 +612,7 @@ class PlanarOdometry:
             dpp, mf_yaw = None, None
         two, weak = self._weak_scale(two, mf_yaw, info)
         if two is not None and mf_yaw is not None and two[1].status == "pure_rotation":
-            two = self._rotation_under_walls(two, mf_yaw, info)
+            two = self._rotation_under_walls(two, mf_yaw, pts, info)
         if weak is not None and mf_yaw is None:
             # no wall gives the yaw, the 2-point method does: a partial step at its yaw,
             # measured from the keyframe when it can be
@@ -880,7 +880,7 @@ class PlanarOdometry:
         yaw = _refused_scale_yaw(two[0], est)
         return None, None if yaw is None else (yaw[0], yaw[1], yaw[0])
 
-    def _rotation_under_walls(self, two, mf_yaw: tuple[float, float, float], info):
+    def _rotation_under_walls(self, two, mf_yaw: tuple[float, float, float], pts, info):
         """``two``, or None where a 2-point estimate the images took for a pure rotation
         gives way to a Manhattan yaw ``mf_yaw`` (``_dpp``) measured better than its own: the
         step is then partial at that yaw, its translation from the same depths.
@@ -889,9 +889,24 @@ class PlanarOdometry:
         motion towards far points turns into yaw: on a seen hall (hall_s6402, every match on
         an end wall 4.1-4.5 m ahead) four such steps in a row erred -0.4 to -0.8 deg at 1-2 of
         their sigmas, where the wall's yaw erred 0.01 deg, and their yaw-sideways correlation
-        (-0.95) carried the graph's correction of the yaw into 0.1 m sideways."""
-        if mf_yaw[1] ** 2 >= two[1].covariance[0, 0]:
+        (-0.95) carried the graph's correction of the yaw into 0.1 m sideways. A Manhattan yaw
+        beyond the veto's gate (:meth:`_vetoed`) gives way only if it explains the 3-D
+        matches at a lower cost than the rotation's yaw, each with its best translation: on
+        another seen hall (hall_s6305) a track vetoed the frame before came back 1.3 deg off
+        with a 1-point translation refused (62 of 142 depths agreeing), and taken as the
+        step's yaw it turned the final heading from -0.08 to -1.07 deg."""
+        c = self.config.odometry
+        var2 = two[1].covariance[0, 0]
+        if mf_yaw[1] ** 2 >= var2:
             return two
+        d = float(geometry.wrap_angle(mf_yaw[2] - two[0].yaw))
+        gate = max(c.dpp_veto_sigmas * math.sqrt(mf_yaw[1] ** 2 + var2), math.radians(c.dpp_veto_min_deg))
+        if abs(d) > gate:
+            _, cost_walls = self._best_at_yaw(replace(two[0], yaw=mf_yaw[2]), pts)
+            _, cost_two = self._best_at_yaw(two[0], pts)
+            if cost_two < cost_walls:
+                info.two_point["kept_over_manhattan_deg"] = math.degrees(d)
+                return two
         info.two_point["gave_way"] = "manhattan_yaw"
         return None
 

@@ -269,7 +269,8 @@ def test_a_pure_rotation_gives_way_to_the_manhattan_yaw():
     seeds): its yaw then maps the matches by rotation alone, off by up to 0.16 deg here and
     by 0.4-0.8 deg on the seen hall, and its translation (the depths' at that yaw)
     sideways by up to 15 mm. With a Manhattan yaw the step is partial at that yaw instead,
-    its translation from the same depths."""
+    its translation from the same depths -- unless that yaw is the less sure one, or lies
+    beyond the veto's gate and explains the depths worse."""
     yaw, t = math.radians(0.3), np.array([0.0, 0.0, -0.027])
     truth, _ = lev_motion_to_base_step(yaw, t, None, MOUNT_SE2)
     statuses, rotations, yaw_err, side_err = [], [], [], []
@@ -287,3 +288,11 @@ def test_a_pure_rotation_gives_way_to_the_manhattan_yaw():
     # a Manhattan yaw less sure than the rotation's (1 deg) does not take its place
     step, info = _step_at_wall_yaw(yaw, math.radians(1.0), *_end_wall_matches(yaw, t, 55, 0))
     assert info.two_point["status"] == "pure_rotation" and step.status == STATUS_2PT
+    # nor does one beyond the veto's gate that explains the depths worse: a track that came
+    # back 1.3 deg off (hall_s6305)
+    wrong = yaw + math.radians(1.3)
+    for seed in range(10):
+        step, info = _step_at_wall_yaw(wrong, math.radians(0.005), *_end_wall_matches(yaw, t, 55, seed))
+        assert abs(math.degrees(step.pose[2] - truth[2])) < 0.2
+        if info.two_point["status"] == "pure_rotation":
+            assert step.status == STATUS_2PT and "kept_over_manhattan_deg" in info.two_point
