@@ -119,7 +119,8 @@ def foxglove_camera_calibration(stamp: float, frame_id: str, intr: CameraIntrins
     return msg
 
 
-def _xyz_quat(T: np.ndarray) -> tuple[dict, dict]:
+def xyz_quat(T: np.ndarray) -> tuple[dict, dict]:
+    """ROS 2 ``(position, orientation)`` dicts of the pose ``T`` (4, 4)."""
     p = pose7_from_matrix(T)
     return ({"x": p[0], "y": p[1], "z": p[2]}, {"x": p[3], "y": p[4], "z": p[5], "w": p[6]})
 
@@ -128,7 +129,7 @@ def ros2_tf_message(transforms) -> dict:
     """``transforms``: iterable of ``(stamp, parent, child, T_parent_child (4, 4))``."""
     out = []
     for stamp, parent, child, T in transforms:
-        t, q = _xyz_quat(T)
+        t, q = xyz_quat(T)
         out.append({"header": ros2_header(stamp, parent), "child_frame_id": child,
                     "transform": {"translation": t, "rotation": q}})
     return {"transforms": out}
@@ -140,14 +141,14 @@ def foxglove_frame_transforms(transforms):
     for stamp, parent, child, T in transforms:
         ft = msg.transforms.add(parent_frame_id=parent, child_frame_id=child)
         _fox_time(ft.timestamp, stamp)
-        t, q = _xyz_quat(T)
+        t, q = xyz_quat(T)
         ft.translation.x, ft.translation.y, ft.translation.z = t["x"], t["y"], t["z"]
         ft.rotation.x, ft.rotation.y, ft.rotation.z, ft.rotation.w = q["x"], q["y"], q["z"], q["w"]
     return msg
 
 
 def ros2_pose_stamped(stamp: float, frame_id: str, T: np.ndarray) -> dict:
-    t, q = _xyz_quat(T)
+    t, q = xyz_quat(T)
     return {"header": ros2_header(stamp, frame_id), "pose": {"position": t, "orientation": q}}
 
 
@@ -165,7 +166,7 @@ def ros2_odometry(stamp: float, frame_id: str, child_frame_id: str, T: np.ndarra
     """nav_msgs/Odometry: pose ``T`` (4, 4) of ``child_frame_id`` in ``frame_id``; ``twist``
     ``(vx, vy, omega)`` in the child frame; ``pose_var`` the x, y, yaw variances (diagonal;
     z, roll and pitch then 1e6, not measured by a planar base), or None: covariances zero (unknown)."""
-    t, q = _xyz_quat(T)
+    t, q = xyz_quat(T)
     pc = list(_ZERO36)
     if pose_var is not None:
         pc[0], pc[7], pc[35] = (float(v) for v in pose_var)

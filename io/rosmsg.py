@@ -84,10 +84,11 @@ def build(store, typename: str, value: dict):
                                     for name, desc in fields})
 
 
-def serialize(encoding: str, typename: str, value: dict) -> bytes:
-    """``value`` (ROS 2-style dict) serialised as ROS 1 (``ros1``) or CDR (``cdr``)."""
+def serialize(encoding: str, typename: str, value) -> bytes:
+    """``value`` (ROS 2-style dict, or a message :func:`build` made) serialised as ROS 1
+    (``ros1``) or CDR (``cdr``)."""
     store = typestore(encoding)
-    msg = build(store, typename, value)
+    msg = build(store, typename, value) if isinstance(value, dict) else value
     if encoding == ROS1:
         return bytes(store.serialize_ros1(msg, typename))
     return bytes(store.serialize_cdr(msg, typename))

@@ -145,6 +145,24 @@ def test_poses_mcap_roundtrip(tmp_path):
     assert all(len(p.poses) <= 50 for p in paths[:-1])
 
 
+def test_ros2_paths_built_once_per_pose_serialise_as_the_dicts_do():
+    """poses.mcap's ROS 2 paths share each pose's message between the path messages that hold
+    it (_Ros2Paths): the bytes are those of the dict that messages.ros2_path describes, for
+    thinned paths, two frames and the poses a growing path repeats."""
+    from planar_vo.io import messages, rosmsg
+    from planar_vo.io.trajectory import _Ros2Paths, _thin
+    rng = np.random.default_rng(5)
+    poses = np.array([matrix_from_pose7(np.r_[rng.normal(size=3), q / np.linalg.norm(q)])
+                      for q in rng.normal(size=(40, 4))])
+    for frame in ("odom", "map"):
+        paths = _Ros2Paths(poses, frame)
+        for stamp, idx in ((1.7e9 + 0.25, np.arange(10)), (1.7e9 + 1.5, _thin(np.arange(40), 16)),
+                           (1.7e9 + 2.0, np.arange(40))):
+            fast = rosmsg.serialize(rosmsg.CDR, "nav_msgs/msg/Path", paths(stamp, idx))
+            slow = rosmsg.serialize(rosmsg.CDR, "nav_msgs/msg/Path", messages.ros2_path(stamp, frame, poses[idx]))
+            assert fast == slow
+
+
 def test_poses_mcap_rejects_bad_names_and_files(tmp_path):
     with pytest.raises(ValueError, match="trajectory name"):
         write_poses_mcap(tmp_path / "p.mcap", {"bad name": Trajectory(np.zeros(1), np.eye(4)[None])})
