@@ -163,6 +163,19 @@ def test_ros2_paths_built_once_per_pose_serialise_as_the_dicts_do():
             assert fast == slow
 
 
+@pytest.mark.parametrize("fmt", ["ros2", "foxglove"])
+def test_poses_mcap_keeps_each_trajectory_s_frame(tmp_path, fmt):
+    """Each trajectory's messages carry its own frame: the builders once looked the frame
+    up after the loop over the trajectories, so all took the last one's."""
+    t = 1.7e9 + np.arange(40) / 10
+    poses = np.array([matrix_from_pose7([0.1 * k, 0, 0, 0, 0, 0, 1]) for k in range(40)])
+    trajs = {"raw": Trajectory(t, poses, frame_id="odom", child_frame_id="base_link"),
+             "global": Trajectory(t, poses, frame_id="map", child_frame_id="base_link")}
+    write_poses_mcap(tmp_path / "p.mcap", trajs, format=fmt)
+    back = read_poses_mcap(tmp_path / "p.mcap")
+    assert {name: tr.frame_id for name, tr in back.items()} == {"raw": "odom", "global": "map"}
+
+
 def test_poses_mcap_rejects_bad_names_and_files(tmp_path):
     with pytest.raises(ValueError, match="trajectory name"):
         write_poses_mcap(tmp_path / "p.mcap", {"bad name": Trajectory(np.zeros(1), np.eye(4)[None])})
