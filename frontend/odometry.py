@@ -895,13 +895,11 @@ class PlanarOdometry:
         another seen hall (hall_s6305) a track vetoed the frame before came back 1.3 deg off
         with a 1-point translation refused (62 of 142 depths agreeing), and taken as the
         step's yaw it turned the final heading from -0.08 to -1.07 deg."""
-        c = self.config.odometry
         var2 = two[1].covariance[0, 0]
         if mf_yaw[1] ** 2 >= var2:
             return two
         d = float(geometry.wrap_angle(mf_yaw[2] - two[0].yaw))
-        gate = max(c.dpp_veto_sigmas * math.sqrt(mf_yaw[1] ** 2 + var2), math.radians(c.dpp_veto_min_deg))
-        if abs(d) > gate:
+        if abs(d) > self._veto_gate(mf_yaw[1] ** 2, var2):
             _, cost_walls = self._best_at_yaw(replace(two[0], yaw=mf_yaw[2]), pts)
             _, cost_two = self._best_at_yaw(two[0], pts)
             if cost_two < cost_walls:
@@ -975,10 +973,9 @@ class PlanarOdometry:
         within a match or two either way, and the cost still tells them apart (a Manhattan
         yaw 0.51 deg off on a held-out hall: 37 against 36 matches, cost 113 against 72).
         """
-        c = self.config.odometry
         var, var2 = dpp[1].covariance[0, 0], two[1].covariance[0, 0]
         d = float(geometry.wrap_angle(dpp[3] - two[0].yaw))
-        gate = max(c.dpp_veto_sigmas * math.sqrt(var + var2), math.radians(c.dpp_veto_min_deg))
+        gate = self._veto_gate(var, var2)
         check = {"dpp_minus_2pt_deg": math.degrees(d), "sigma_deg": math.degrees(math.sqrt(var + var2)),
                  "vetoed": abs(d) > gate, "track_id": dpp[2]}
         info.yaw_check = check
@@ -989,6 +986,13 @@ class PlanarOdometry:
         check.update(dpp_support=n_dpp, two_point_support=n_two, dpp_cost=cost_dpp, two_point_cost=cost_two)
         check["vetoed"] = bool(cost_two < cost_dpp)
         return check["vetoed"]
+
+    def _veto_gate(self, var_walls: float, var_two: float) -> float:
+        """How far (rad) a Manhattan yaw and a 2-point yaw of variances ``var_walls`` and
+        ``var_two`` may differ before one is tested against the other on the 3-D matches:
+        ``dpp_veto_sigmas`` of their joint sigma, at least ``dpp_veto_min_deg``."""
+        c = self.config.odometry
+        return max(c.dpp_veto_sigmas * math.sqrt(var_walls + var_two), math.radians(c.dpp_veto_min_deg))
 
     def _best_at_yaw(self, motion, pts) -> tuple[int, float]:
         """``(inliers, cost)`` on the 3-D matches of the best translation at ``motion``'s yaw:

@@ -190,8 +190,9 @@ class _Ros2Paths:
     """nav_msgs/Path messages of one trajectory's ``poses`` (N, 4, 4) in ``frame_id``, as
     ``rosbags`` objects (what :func:`planar_vo.io.messages.ros2_path` gives as a dict,
     serialised to the same bytes). The path grows: each pose is converted once and shared
-    by every path message that holds it (built from dicts, the ~9000 poses of a 300-frame
-    run's paths took 60 % of writing ``poses.mcap``)."""
+    by every path message that holds it (the demo's two paths hold 9198 poses over their
+    messages: built from dicts, writing its ``poses.mcap`` took 0.25-0.29 s of CPU, shared
+    0.06-0.09 s)."""
 
     def __init__(self, poses: np.ndarray, frame_id: str):
         self._poses, self._frame, self._built = poses, frame_id, {}
