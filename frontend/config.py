@@ -315,6 +315,14 @@ class OdometryConfig:
     #: was measured is partial at the guessed yaw; else it is bridged.
     depth_yaw: bool = True
     depth_yaw_range_deg: float = 3.0
+    #: A 2-point step whose metric scale came from fewer than ``min_scale_inliers`` depths
+    #: (weak scale) also takes the depth alignment's distance along its long axis, fused by
+    #: the two variances (``PlanarOdometry._aligned``): thousands of depth pixels against a
+    #: handful of corners. On eight tuning hall logs (seeds 3700-3706), 337 of 870 such
+    #: frame-to-frame steps found an alignment; they erred 8.3 mm rms along it (1.15 of
+    #: their sigma), fused 2.1 mm (0.95, none beyond 4 sigmas). The motion from the
+    #: keyframe is aligned against the keyframe's depth the same way.
+    weak_scale_align: bool = True
     #: Inliers along one image line (smaller / larger principal spread below this) do not
     #: fix the motion along that line (KLT's aperture problem on a floor-wall junction).
     min_inlier_spread: float = 0.1

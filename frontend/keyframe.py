@@ -90,6 +90,11 @@ class Keyframe:
     walls: bool = False
     #: ``(age, motion)`` of the motions from K measured so far (K itself first)
     measured: list = field(default_factory=list)
+    #: K's depth (H, W) float32 metres and levelling (3, 3), for the depth alignment of
+    #: weak-scale motions from K (set by the odometry), and its sampled points, once
+    depth: np.ndarray | None = None
+    R_lev_cam: np.ndarray | None = None
+    align_points: tuple | None = None
 
 
 class KeyframeTracker:

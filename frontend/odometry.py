@@ -73,6 +73,7 @@ class _Prev:
     planes: list[Plane] | None = None  # walls and floor
     depth: np.ndarray | None = None    # (H, W) float32 m, for partial steps' depth alignment
     R_lev_cam: np.ndarray | None = None
+    align_points: tuple | None = None  # its depth alignment points and normals, once sampled
 
 
 def levelled_features(fs: FeatureSet, R_lev_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -508,6 +509,8 @@ class PlanarOdometry:
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
                                          walls=step is not None and step.status == STATUS_DPP,
                                          yaw_var=self._kf_yaw[2] if self._kf_yaw and self._kf_guessed is not None else None)
+        if renewed:
+            self._keyframes.kf.depth, self._keyframes.kf.R_lev_cam = self._depth
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
 
@@ -622,27 +625,45 @@ class PlanarOdometry:
             if est is None:
                 continue
             motion, e = est[0], est[1]
-            yaw, t, cov_t = motion.yaw, motion.t, e.covariance
-            kf = self._from_keyframe(status, (yaw, t), e.covariance, x_lev, P_lev, planes, mount_se2, info)
-            link = None
+            yaw, t, cov = motion.yaw, motion.t, e.covariance
+            weak = status == STATUS_2PT and self._weak_scale_aligns(info)
+            if weak:
+                (yaw, t), cov, _ = self._aligned((yaw, t), cov, prev, info, "frame")
+            kf = self._from_keyframe(status, (yaw, t), cov, x_lev, P_lev, planes, mount_se2, info)
+            link, cov_t = None, cov
             if kf is not None:
-                # the step is the difference of two motions from the keyframe: it also takes
-                # back what guessed steps since the last measurement got wrong
-                yaw, t = self._keyframes.step_from(kf[0])
-                link = (self._keyframes.kf.age + 1, kf[0], kf[1], self._keyframes.kf.guess_cov)
-                cov_t = _step_covariance(kf[1] + link[3], e.covariance, kf[2])
+                kf, (yaw, t), link, cov_t = self._keyframe_step(kf, cov, weak, info)
             if status == STATUS_2PT and self._velocity_jump(t, cov_t, info):
                 continue
-            step = self._accept(yaw, t, e.covariance, status, e.num_inliers, mount_se2, info, link, cov_t, depth)
+            step = self._accept(yaw, t, cov, status, e.num_inliers, mount_se2, info, link, cov_t, depth)
             if step is not None:
                 if status == STATUS_DPP:
                     self._dpp_track = est[2]
                 if kf is None and self.config.odometry.keyframes and not self._keyframes.active():
                     # the keyframe is the previous frame: the step is the motion from it
-                    kf = ((yaw, np.asarray(t, float)), e.covariance)
+                    kf = ((yaw, np.asarray(t, float)), cov)
                 self._kf_measured = kf[:2] if kf is not None else None
                 return step
         return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info, pts)
+
+    def _keyframe_step(self, kf, cov: np.ndarray, weak: bool, info):
+        """``(kf, step, link, cov_t)`` of a step taken as the difference of two motions from
+        the keyframe: ``kf`` as :meth:`_from_keyframe` returns it (the motion into this frame
+        depth-aligned when the step's scale is ``weak``, :meth:`_aligned`), the levelled step
+        ``(yaw, t)``, the link ``(lag, motion, cov, guess_cov)`` and the step's (3, 3)
+        covariance (:func:`_step_covariance`; ``cov``: the frame-to-frame estimate's)."""
+        kt = self._keyframes
+        # the step also takes back what guessed steps since the last measurement got wrong
+        link_cov = kf[1] + kt.kf.guess_cov
+        if weak:
+            motion_k, cov_k, fused = self._aligned(kf[0], kf[1], kt.kf, info, "keyframe")
+            if fused:
+                # the last motion's scale came from another alignment, or from a few depths
+                # alone: the step errs by both (the last one's guesses included)
+                link_cov = cov_k + kt.kf.cov
+            kf = (motion_k, cov_k, kf[2])
+        link = (kt.kf.age + 1, kf[0], kf[1], kt.kf.guess_cov)
+        return kf, kt.step_from(kf[0]), link, _step_covariance(link_cov, cov, kf[2])
 
     def _from_keyframe(self, status: str, step: tuple[float, np.ndarray], cov: np.ndarray, x_lev, P_lev, planes,
                        mount_se2, info) -> tuple[tuple[float, np.ndarray], np.ndarray, bool] | None:
@@ -1194,6 +1215,61 @@ class PlanarOdometry:
         return [(np.array([1.0, 0.0]), float(motion.t[0]), float(cov[1, 1])),
                 (np.array([0.0, 1.0]), float(motion.t[2]), float(cov[2, 2]))], int(est.num_inliers)
 
+    def _weak_scale_aligns(self, info) -> bool:
+        """True when this frame's 2-point step is kept with a weak scale (fewer than
+        ``min_scale_inliers`` agreeing depths, :meth:`_weak_scale`) and
+        ``odometry.weak_scale_align`` fuses the depth alignment into it (:meth:`_aligned`)."""
+        c = self.config.odometry
+        return bool(c.weak_scale_align and c.depth_align and info.two_point
+                    and info.two_point.get("scale_inliers", c.min_scale_inliers) < c.min_scale_inliers)
+
+    def _aligned(self, motion: tuple[float, np.ndarray], cov: np.ndarray, source, info, name: str):
+        """``(motion, cov, fused)``: a weak-scale 2-point motion ``(yaw, t)`` (levelled, ``t`` (3,))
+        from ``source`` (the previous frame's :class:`_Prev` or the keyframe) to this frame,
+        with ``cov`` (3, 3) over ``(yaw, t_x, t_z)``, updated by the depth alignment of
+        ``source``'s depth onto this frame's along the motion's least known axis (the larger
+        axis of its translation covariance: the scale the few depths fixed).
+
+        The alignment searches ``+-4`` of that axis' sigmas (``depth_align_min_range_m`` to
+        ``depth_align_max_range_m``) at the motion's yaw; its distance ``s`` along ``u`` is a
+        measurement of ``u . t`` of variance ``var``, fused as one Kalman update (the yaw and
+        the other axis move by their correlation with ``u . t``). A distance beyond
+        ``wall_gate_sigmas`` of the two combined sigmas means one of them is wrong: the
+        motion is kept as it was (``fused`` False; ``info.two_point["aligned_..."]`` says
+        which)."""
+        c = self.config.odometry
+        if source is None or source.depth is None or self._depth is None:
+            return motion, cov, False
+        P1, normals = self._align_points(source)
+        lam, vec = np.linalg.eigh(cov[1:, 1:])
+        sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
+        half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
+        yaw, t = motion
+        t_xz = np.array([t[0], t[2]], dtype=float)
+        depth, R = self._depth
+        a = align_along(P1[informative(normals, u, self._align_opt)], depth, self.intrinsics, R, yaw, t_xz, u, half,
+                        self._align_opt, wide=False)
+        if a is None:
+            info.two_point[f"aligned_{name}"] = None
+            return motion, cov, False
+        H = np.array([0.0, u[0], u[1]])
+        S = float(H @ cov @ H) + a.var
+        z = a.s / math.sqrt(S)
+        info.two_point[f"aligned_{name}"] = {"s_m": a.s, "sigma_m": math.sqrt(a.var), "sigmas": z}
+        if abs(z) > c.wall_gate_sigmas:
+            return motion, cov, False
+        K = cov @ H / S
+        x = np.array([yaw, t_xz[0], t_xz[1]]) + K * a.s
+        cov = cov - np.outer(K, H @ cov)
+        return (float(x[0]), np.array([x[1], t[1], x[2]])), 0.5 * (cov + cov.T), True
+
+    def _align_points(self, source) -> tuple[np.ndarray, np.ndarray]:
+        """The depth alignment's levelled points and normals (N, 3) each of ``source`` (a
+        :class:`_Prev` or the keyframe), sampled from its depth once (:func:`sample_points`)."""
+        if source.align_points is None:
+            source.align_points = sample_points(source.depth, self.intrinsics, source.R_lev_cam, self._align_opt)
+        return source.align_points
+
     def _dense_translation(self, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, info, wide: bool = False) -> list:
         """``[(u (2,), delta, var)]`` (as :func:`wall_constraints`): the translation along the
         direction ``u`` the walls left to the guess (the larger axis of ``cov_t``), measured
@@ -1210,7 +1286,7 @@ class PlanarOdometry:
         lam, vec = np.linalg.eigh(cov_t)
         sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
         opt = self._align_opt
-        P1, normals = sample_points(self._prev.depth, self.intrinsics, self._prev.R_lev_cam, opt)
+        P1, normals = self._align_points(self._prev)
         P1 = P1[informative(normals, u, opt)]
         half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
         depth, R = self._depth
@@ -1237,7 +1313,7 @@ class PlanarOdometry:
         if not (c.depth_align and c.depth_yaw) or self._prev is None or self._prev.depth is None or self._depth is None:
             return None
         opt = self._align_opt
-        P1, normals = sample_points(self._prev.depth, self.intrinsics, self._prev.R_lev_cam, opt)
+        P1, normals = self._align_points(self._prev)
         half = math.radians(c.depth_yaw_range_deg)
         t_xz = np.array([t[0], t[2]], dtype=float)
         if c.lateral_slip > 0:
