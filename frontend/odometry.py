@@ -509,7 +509,7 @@ class PlanarOdometry:
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
                                          walls=step is not None and step.status == STATUS_DPP,
                                          yaw_var=self._kf_yaw[2] if self._kf_yaw and self._kf_guessed is not None else None)
-        if renewed:
+        if renewed and self._depth is not None:
             self._keyframes.kf.depth, self._keyframes.kf.R_lev_cam = self._depth
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
