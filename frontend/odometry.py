@@ -629,10 +629,11 @@ class PlanarOdometry:
             weak = status == STATUS_2PT and self._weak_scale_aligns(info)
             if weak:
                 (yaw, t), cov, _ = self._aligned((yaw, t), cov, prev, info, "frame")
-            kf = self._from_keyframe(status, (yaw, t), cov, x_lev, P_lev, planes, mount_se2, info)
+            kf = self._from_keyframe(status, (motion.yaw, motion.t), e.covariance, x_lev, P_lev, planes, mount_se2,
+                                     info, weak)
             link, cov_t = None, cov
             if kf is not None:
-                kf, (yaw, t), link, cov_t = self._keyframe_step(kf, cov, weak, info)
+                (yaw, t), link, cov_t = self._keyframe_step(kf, cov)
             if status == STATUS_2PT and self._velocity_jump(t, cov_t, info):
                 continue
             step = self._accept(yaw, t, cov, status, e.num_inliers, mount_se2, info, link, cov_t, depth)
@@ -646,31 +647,34 @@ class PlanarOdometry:
                 return step
         return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info, pts)
 
-    def _keyframe_step(self, kf, cov: np.ndarray, weak: bool, info):
-        """``(kf, step, link, cov_t)`` of a step taken as the difference of two motions from
-        the keyframe: ``kf`` as :meth:`_from_keyframe` returns it (the motion into this frame
-        depth-aligned when the step's scale is ``weak``, :meth:`_aligned`), the levelled step
-        ``(yaw, t)``, the link ``(lag, motion, cov, guess_cov)`` and the step's (3, 3)
-        covariance (:func:`_step_covariance`; ``cov``: the frame-to-frame estimate's)."""
+    def _keyframe_step(self, kf, cov: np.ndarray):
+        """``(step, link, cov_t)`` of a step taken as the difference of two motions from the
+        keyframe, ``kf`` as :meth:`_from_keyframe` returns it: the levelled step ``(yaw, t)``,
+        the link ``(lag, motion, cov, guess_cov)`` and the step's (3, 3) covariance
+        (:func:`_step_covariance`; ``cov``: the frame-to-frame estimate's)."""
         kt = self._keyframes
         # the step also takes back what guessed steps since the last measurement got wrong
         link_cov = kf[1] + kt.kf.guess_cov
-        if weak:
-            motion_k, cov_k, fused = self._aligned(kf[0], kf[1], kt.kf, info, "keyframe")
-            if fused:
-                # the last motion's scale came from another alignment, or from a few depths
-                # alone: the step errs by both (the last one's guesses included)
-                link_cov = cov_k + kt.kf.cov
-            kf = (motion_k, cov_k, kf[2])
+        if kf[3]:
+            # a depth-aligned motion: the last one's scale came from another alignment, or
+            # from a few depths alone, and the step errs by both (its guesses included)
+            link_cov = kf[1] + kt.kf.cov
         link = (kt.kf.age + 1, kf[0], kf[1], kt.kf.guess_cov)
-        return kf, kt.step_from(kf[0]), link, _step_covariance(link_cov, cov, kf[2])
+        return kt.step_from(kf[0]), link, _step_covariance(link_cov, cov, kf[2])
 
     def _from_keyframe(self, status: str, step: tuple[float, np.ndarray], cov: np.ndarray, x_lev, P_lev, planes,
-                       mount_se2, info) -> tuple[tuple[float, np.ndarray], np.ndarray, bool] | None:
-        """``(motion, cov, chained)``: the motion keyframe -> this frame re-measured with the
-        step's estimator, its (3, 3) covariance over ``(yaw, t_x, t_z)`` and whether it kept
-        the chained yaw; or None (no earlier keyframe, too few corners, or a motion that
-        disagrees with the chained steps; frontend/keyframe.py).
+                       mount_se2, info, weak: bool = False) -> tuple | None:
+        """``(motion, cov, chained, aligned)``: the motion keyframe -> this frame re-measured
+        with the step's estimator, its (3, 3) covariance over ``(yaw, t_x, t_z)``, whether it
+        kept the chained yaw, and whether it was depth-aligned; or None (no earlier keyframe,
+        too few corners, or a motion that disagrees with the chained steps;
+        frontend/keyframe.py). ``weak``: the step's scale is weak: a motion that passed is
+        then aligned against the keyframe's depth (:meth:`_aligned`). The gate compares the
+        motions as measured, ``step`` and ``cov`` the frame-to-frame estimate's before its
+        own alignment: compared with aligned steps, whose sigmas along the motion are a
+        tenth of the few depths', the motions from the keyframe failed it and the keyframe
+        was renewed, the step taken frame to frame (in tests/test_keyframe.py's weak-scale
+        drive, 2.7 sigma sideways).
 
         ``step``: the step's levelled ``(yaw, t)`` with covariance ``cov``. A direction-plus-
         point step keeps its Manhattan yaw (eq. 1 telescopes along the track): only the
@@ -710,7 +714,11 @@ class PlanarOdometry:
         if not m2 <= c.keyframe_gate_chi2:
             info.rejected.append({"status": status, "keyframe_sigmas": math.sqrt(m2), "keyframe_age": kf.age})
             return None
-        return (float(motion.yaw), np.asarray(motion.t, float)), est.covariance, chained
+        m = (float(motion.yaw), np.asarray(motion.t, float))
+        if not weak:
+            return m, est.covariance, chained, False
+        m, cov_k, aligned = self._aligned(m, est.covariance, kf, info, "keyframe")
+        return m, cov_k, chained, aligned
 
     def _keyframe_two_point_options(self, mount_se2, age: int):
         """The 2-point options for a motion from a keyframe ``age`` frames back: a corner
