@@ -7,7 +7,9 @@ For every seed and layout a randomized log (:func:`planar_vo.sim.synth_random.ra
 is rendered into the cache (kept, and reused while its parameters are the same: rendering
 is the slow part), run end to end with ``planar-vo run``'s code path and the given
 configuration, and compared with its ground truth. ``--long K`` makes K of the logs at
-least 1000 frames (errors grow with length). Printed per layout and over all logs:
+least 1000 frames (errors grow with length), spread evenly over the logs chosen: with
+``--layouts`` a subset of the layouts gets its own K long logs, so its logs are not all
+among those of the full sweep over the same seeds. Printed per layout and over all logs:
 median, 90th percentile and worst of raw and smoothed end-point drift (% of path) and
 |final yaw| (deg), and smoothed minus raw drift; the steps per status; and the normalised
 step errors per status -- each step's error against the ground truth divided by the sigma
