@@ -1248,15 +1248,9 @@ class PlanarOdometry:
         c = self.config.odometry
         if source is None or source.depth is None or self._depth is None:
             return motion, cov, False
-        P1, normals = self._align_points(source)
-        lam, vec = np.linalg.eigh(cov[1:, 1:])
-        sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
-        half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
         yaw, t = motion
         t_xz = np.array([t[0], t[2]], dtype=float)
-        depth, R = self._depth
-        a = align_along(P1[informative(normals, u, self._align_opt)], depth, self.intrinsics, R, yaw, t_xz, u, half,
-                        self._align_opt, wide=False)
+        u, a, _ = self._along_long_axis(source, yaw, t_xz, cov[1:, 1:])
         if a is None:
             info.two_point[f"aligned_{name}"] = None
             return motion, cov, False
@@ -1270,6 +1264,22 @@ class PlanarOdometry:
         x = np.array([yaw, t_xz[0], t_xz[1]]) + K * a.s
         cov = cov - np.outer(K, H @ cov)
         return (float(x[0]), np.array([x[1], t[1], x[2]])), 0.5 * (cov + cov.T), True
+
+    def _along_long_axis(self, source, yaw: float, t_xz: np.ndarray, cov_t: np.ndarray, wide: bool = False):
+        """``(u, alignment, points)``: the depth alignment (:func:`align_along`, or None where
+        it finds no clear minimum) of ``source``'s depth (a :class:`_Prev` or the keyframe)
+        onto this frame's at ``yaw`` (rad), from the levelled translation ``t_xz`` (2,) along
+        ``u`` (2,), the larger axis of its (2, 2) covariance ``cov_t``, over ``+-4`` of that
+        axis' sigmas (``depth_align_min_range_m`` to ``depth_align_max_range_m``); ``points``:
+        the informative points it used."""
+        c = self.config.odometry
+        lam, vec = np.linalg.eigh(cov_t)
+        sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
+        P1, normals = self._align_points(source)
+        P1 = P1[informative(normals, u, self._align_opt)]
+        half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
+        depth, R = self._depth
+        return u, align_along(P1, depth, self.intrinsics, R, yaw, t_xz, u, half, self._align_opt, wide=wide), len(P1)
 
     def _align_points(self, source) -> tuple[np.ndarray, np.ndarray]:
         """The depth alignment's levelled points and normals (N, 3) each of ``source`` (a
@@ -1291,16 +1301,9 @@ class PlanarOdometry:
         c = self.config.odometry
         if not c.depth_align or self._prev is None or self._prev.depth is None or self._depth is None:
             return []
-        lam, vec = np.linalg.eigh(cov_t)
-        sigma, u = math.sqrt(max(float(lam[-1]), 0.0)), vec[:, -1]
-        opt = self._align_opt
-        P1, normals = self._align_points(self._prev)
-        P1 = P1[informative(normals, u, opt)]
-        half = min(max(4.0 * sigma, c.depth_align_min_range_m), c.depth_align_max_range_m)
-        depth, R = self._depth
-        a = align_along(P1, depth, self.intrinsics, R, yaw, t_xz, u, half, opt, wide=wide)
+        u, a, n_points = self._along_long_axis(self._prev, yaw, t_xz, cov_t, wide)
         if a is None:
-            info.partial_dense = {"points": len(P1)}  # tried: no clear minimum
+            info.partial_dense = {"points": n_points}  # tried: no clear minimum
             return []
         info.partial_dense = {"s_m": a.s, "sigma_m": math.sqrt(a.var), "points": a.n_points}
         return [(u, float(u @ t_xz) + a.s, a.var)]
