@@ -235,15 +235,6 @@ class OdometryConfig:
     #: decide: the 2-point yaw vetoes when it explains them at a lower truncated cost, each
     #: yaw with its best translation (``PlanarOdometry._vetoed``); otherwise the walls stand.
     dpp_veto_sigmas: float = 4.0
-    #: Share of the two views' systematic yaw terms (beyond the Manhattan floor) that does
-    #: not cancel in the direction-plus-point yaw (eq. 1), which the step states
-    #: (:meth:`LocalFrame.step_sigma`). On the tuning halls (3700-3707, 959 steps) the steps
-    #: whose two observations stated 0.3-0.45 deg together erred 0.085 deg rms at 0.050
-    #: stated (5.6 % beyond 4 sigmas), those at the floor 0.031 at 0.036: narrow and far
-    #: walls change extent and layers from view to view. The gates (wall-by-wall check,
-    #: reference jump, 2-point veto) keep the image-to-image sigma: widened with this,
-    #: they let 0.3-0.4 deg wall yaws through on a dev hall (hall_s6400, 0.99 -> 1.12 %).
-    dpp_systematic_share: float = 0.2
     dpp_veto_min_deg: float = 0.3
     #: A track's carried reference jumped to another surface when the step's yaw and the
     #: frame-to-frame one differ beyond ``dpp_veto_sigmas`` and this many degrees (the
@@ -408,9 +399,6 @@ class OdometryConfig:
             raise ConfigError("config key 'odometry.velocity_gate_sigmas' must be >= 0 (0 turns the gate off)")
         if self.lateral_slip < 0:
             raise ConfigError("config key 'odometry.lateral_slip' must be >= 0 (0 turns the prior off)")
-        if not 0.0 <= self.dpp_systematic_share <= 1.0:
-            raise ConfigError(f"config key 'odometry.dpp_systematic_share' must be in [0, 1] (0: the systematic "
-                              f"terms cancel), got {self.dpp_systematic_share!r}")
         if not self.keyframe_track_px >= 0:
             raise ConfigError(f"config key 'odometry.keyframe_track_px' must be >= 0 (0 turns it off), "
                               f"got {self.keyframe_track_px!r}")

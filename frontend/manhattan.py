@@ -58,18 +58,11 @@ class LocalFrame:
     prev_sigma_fit: float = math.inf
     width: float = 0.0  # widest of its walls (m, Plane.width)
 
-    def step_sigma(self, systematic_share: float = 0.0, floor: float = 0.0) -> float:
+    def step_sigma(self) -> float:
         """Std (rad) of the direction-plus-point yaw ``heading - prev_heading`` (eq. 1): the
         two views' image-to-image parts, plus what the steps the reference was carried over
-        added. Their common part (levelling, the floor ``floor`` rad) cancels in the
-        difference; of the walls' systematic terms beyond it (narrow and far walls, whose
-        extent and layers change from view to view), ``systematic_share`` does not."""
-        var = self.sigma_fit ** 2 + self.prev_sigma_fit ** 2
-        if systematic_share > 0:
-            excess = (max(self.sigma ** 2 - max(floor, self.sigma_fit) ** 2, 0.0)
-                      + max(self.prev_sigma ** 2 - max(floor, self.prev_sigma_fit) ** 2, 0.0))
-            var += systematic_share ** 2 * excess
-        return math.sqrt(var)
+        added. Their common part (systematic, levelling) cancels in the difference."""
+        return math.hypot(self.sigma_fit, self.prev_sigma_fit)
 
 
 def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> list[LocalFrame]:

@@ -626,9 +626,6 @@ class PlanarOdometry:
                 continue
             motion, e = est[0], est[1]
             yaw, t, cov = motion.yaw, motion.t, e.covariance
-            if status == STATUS_DPP and est[4] > 0:
-                cov = cov.copy()
-                cov[0, 0] += est[4]
             weak = status == STATUS_2PT and self._weak_scale_aligns(info)
             if weak:
                 (yaw, t), cov, _ = self._aligned((yaw, t), cov, prev, info, "frame")
@@ -796,11 +793,7 @@ class PlanarOdometry:
             if motion is None or est.num_inliers < c.dpp_min_inliers:
                 continue
             if best is None or est.num_inliers > best[1].num_inliers:
-                # the gates above and the veto compare the image-to-image sigma; the step
-                # states what of the walls' systematic terms does not cancel too
-                stated = f.step_sigma(c.dpp_systematic_share, math.radians(self.config.manhattan.min_sigma_deg))
-                best = (replace(motion, yaw=float(geometry.wrap_angle(yaw))), est, f.track_id, motion.yaw,
-                        stated ** 2 - yaw_sigma ** 2)
+                best = (replace(motion, yaw=float(geometry.wrap_angle(yaw))), est, f.track_id, motion.yaw)
             if est.num_inliers >= 0.8 * n_depth:
                 break
         if best is not None and best[1].num_inliers < c.dpp_min_inlier_ratio * n_depth:
