@@ -653,12 +653,10 @@ class PlanarOdometry:
         the link ``(lag, motion, cov, guess_cov)`` and the step's (3, 3) covariance
         (:func:`_step_covariance`; ``cov``: the frame-to-frame estimate's)."""
         kt = self._keyframes
-        # the step also takes back what guessed steps since the last measurement got wrong
-        link_cov = kf[1] + kt.kf.guess_cov
-        if kf[3]:
-            # a depth-aligned motion: the last one's scale came from another alignment, or
-            # from a few depths alone, and the step errs by both (its guesses included)
-            link_cov = kf[1] + kt.kf.cov
+        # the step also takes back what guessed steps since the last measurement got wrong;
+        # after a depth-aligned motion, all of the last one's error: its scale came from
+        # another alignment, or from a few depths alone (its guesses included)
+        link_cov = kf[1] + (kt.kf.cov if kf[3] else kt.kf.guess_cov)
         link = (kt.kf.age + 1, kf[0], kf[1], kt.kf.guess_cov)
         return kt.step_from(kf[0]), link, _step_covariance(link_cov, cov, kf[2])
 
