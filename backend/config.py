@@ -87,13 +87,19 @@ class BackendConfig:
     #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
     #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2 (the front-end's bridged guess uses the same 30).
     motion_prior_yaw_accel_deg: float = 30.0
-    #: Where the motion prior applies, leave out of a step's information what the front-end's
-    #: own constant-velocity guess contributed (``Step.guess_information``): the prior states
-    #: the same thing, tied to the measured steps on both sides of a gap. Off by default: on
-    #: the tuning seeds 3700-3707 it helped the two textureless corridors (smoothed 6.63 ->
-    #: 5.72 %, 3.08 -> 2.63 %) and hurt a low-texture 30 Hz hall (0.95 -> 2.97 %), whose
-    #: guesses average five measured steps where the prior ties a gap to the one next to it.
-    motion_prior_replaces_guess: bool = False
+    #: Where the motion prior applies, what of a step's information the front-end's own
+    #: constant-velocity guess contributed (``Step.guess_information``) is kept:
+    #: ``"keep"``: all of it, next to the prior; ``"correlated"``: weighted as one error
+    #: shared by every step of a gap that copies one velocity
+    #: (:meth:`_GraphBuilder._guess_weighted`); ``"replace"``: none, the prior states the
+    #: same constant velocity, tied to the measured steps on both sides of a gap.
+    #: "keep" by default (docs/bench/guess_weight_session37.md): "correlated" made the
+    #: smoothed end point of 5 logs better and 3 worse over the tuning seeds 3700-3707 and
+    #: the seen sets 6800-6907 (the gaps' own errors 52 -> 44, 55 -> 40, 49 -> 34 mm RMS),
+    #: "replace" 1 better and 3 worse on the tuning seeds. A guess's sigma grows as though
+    #: the velocity changed at up to 0.5 m/s^2, far more than a cruising base's guess errs,
+    #: so a long gap weighted as one error is left to its noisy partial measurements.
+    motion_prior_guess: Literal["keep", "correlated", "replace"] = "keep"
     #: True: a gap at the start of a run (no step's forward speed measured yet) starts from
     #: rest: the prior expects the base to speed up at ``motion_prior_accel`` from the first
     #: frame to the speed measured after the gap (the median of the first three measured

@@ -244,6 +244,7 @@ class _GraphBuilder:
         self._mp_upto = 1               # the last frame whose velocity the prior ties
         self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
         self._mp_last_weak = -(1 << 30)  # the last frame whose translation was unmeasured
+        self._guess_sigma_sum = 0.0  # m, the guess sigmas of a gap's copies so far (_guess_weighted)
         self._yaw_accel = math.radians(config.motion_prior_yaw_accel_deg)
         self._bridged_info = np.diag(1.0 / np.array([config.bridged_sigma_xy, config.bridged_sigma_xy,
                                                      math.radians(config.bridged_sigma_theta_deg)]) ** 2)
@@ -277,10 +278,10 @@ class _GraphBuilder:
         kind = result.step.status if result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL) else "step"
         self.raw.append(se2_compose(self.raw[-1], p))
         guess = result.step.guess_information
-        if (guess is not None and odometry is None and self.cfg.motion_prior_accel > 0
-                and self.cfg.motion_prior_replaces_guess):
-            info = self._measured_part(info, _check_information(guess, f"FrameResult {result.index} "
-                                                                       "step.guess_information", psd=True))
+        if guess is not None and odometry is None and self.cfg.motion_prior_accel > 0:
+            info = self._guess_weighted(info, _check_information(guess, f"FrameResult {result.index} "
+                                                                        "step.guess_information", psd=True),
+                                        result.step.guess_copies)
         vision = self._vision_factor(k, result, p, info, kind)
         if odometry is None:
             for f in vision(np.eye(3)):
@@ -301,16 +302,38 @@ class _GraphBuilder:
             graph.add(f)
         return fuse_steps(p, info, p_w, info_w)
 
-    def _measured_part(self, info: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """A step's information without the front-end's constant-velocity guess: the motion
-        prior (:meth:`_motion_prior`) states the same constant velocity, tied to the steps
-        measured on both sides of a gap; both at once count it twice, and the guess, copied
-        from the steps before the gap into every step of it, errs alike in all of them (on
-        the low-texture tuning halls the graph came out 1-2 % worse than the raw chain).
-        What no measurement fixes keeps the bridged sigmas (``bridged_sigma_xy``,
-        ``bridged_sigma_theta_deg``) so that the graph stays determined."""
-        m = 0.5 * ((info - guess) + (info - guess).T)
-        w, v = np.linalg.eigh(m)
+    def _guess_weighted(self, info: np.ndarray, guess: np.ndarray, copies: int) -> np.ndarray:
+        """A step's information ``info`` (3, 3) with its part ``guess`` (3, 3), the front-end's
+        constant-velocity guess, kept as ``backend.motion_prior_guess`` says; ``copies``: the
+        guess is the copies-th step in a row copying one velocity (``Step.guess_copies``).
+
+        The guess copied into every step of a gap errs alike in all of them (the copied
+        velocity's error, then the velocity's change since), but each step states its own
+        sigma ``s_k`` as though independent: over a gap the graph would trust the guess
+        ``sqrt(k)`` times too much. ``"correlated"`` divides the k-th copy's guess by
+        ``f_k = (2 S_{k-1} + s_k) / s_k``, ``S_{k-1}`` the sigmas of the copies before it
+        summed: the guessed distance over the first k copies then has variance ``S_k^2``,
+        that of errors all of one sign (``sum_j (S_j^2 - S_{j-1}^2) = S_k^2``), and the
+        motion prior (:meth:`_motion_prior`), which ties a gap to the speeds measured on
+        both sides, gets the say it should in long gaps. ``"replace"`` leaves the guess
+        out. What no measurement fixes keeps at least the bridged sigmas
+        (``bridged_sigma_xy``, ``bridged_sigma_theta_deg``) so that the graph stays
+        determined."""
+        mode = self.cfg.motion_prior_guess
+        if mode == "keep":
+            return info
+        keep = 0.0
+        if mode == "correlated":
+            if copies <= 1:
+                self._guess_sigma_sum = 0.0
+            lam = float(np.linalg.eigvalsh(guess[:2, :2]).max())  # the guess's tightest direction
+            if not lam > 0:
+                return info
+            s_k = 1.0 / math.sqrt(lam)
+            keep = s_k / (2.0 * self._guess_sigma_sum + s_k)
+            self._guess_sigma_sum += s_k
+        m = info - (1.0 - keep) * guess
+        w, v = np.linalg.eigh(0.5 * (m + m.T))
         return (v * np.maximum(w, 0.0)) @ v.T + self._bridged_info
 
     def _vision_factor(self, k: int, result: FrameResult, p: np.ndarray, info: np.ndarray, kind: str):

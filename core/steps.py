@@ -105,6 +105,9 @@ class Step:
     the part of ``information`` that comes from the front-end's constant-velocity guess
     rather than a measurement (partial and bridged steps), else None: a back-end with a
     motion prior of its own puts that prior in its place, not on top of it.
+    ``guess_copies``: for such a step, how many steps in a row (this one included) have
+    copied the guessed velocity since the translation was last measured (their guesses err
+    alike); 0 for a measured step.
     """
 
     pose: np.ndarray
@@ -114,6 +117,7 @@ class Step:
     keyframe: KeyframeLink | None = None
     keyframe_yaw: KeyframeYaw | None = None
     guess_information: np.ndarray | None = None
+    guess_copies: int = 0
 
 
 @dataclass

@@ -1097,7 +1097,7 @@ class PlanarOdometry:
             guess[0, 0] = 1.0 / sigma_yaw ** 2
         self._partial_guess(float(yaw_ff), t, cov, how, measured)
         return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"], keyframe_yaw=self._yaw_link(mount_se2),
-                     guess_information=Ji.T @ guess @ Ji), (yaw, t, sigma_yaw ** 2))
+                     guess_information=Ji.T @ guess @ Ji, guess_copies=self._since_t), (yaw, t, sigma_yaw ** 2))
 
     def _yaw_link(self, mount_se2) -> KeyframeYaw | None:
         """The base_link heading change from the keyframe of a partial step whose yaw
@@ -1169,7 +1169,8 @@ class PlanarOdometry:
         info.bridge = how
         self._kf_guessed = ((yaw, np.asarray(t, float)), cov)
         information = np.linalg.inv(cov_b)
-        return Step(pose, information, STATUS_BRIDGED, 0, guess_information=information), (yaw, t, s_theta ** 2)
+        return (Step(pose, information, STATUS_BRIDGED, 0, guess_information=information, guess_copies=self._since_t),
+                (yaw, t, s_theta ** 2))
 
     def _wheeled_prior(self, yaw: float, t_guess: np.ndarray, sb: float, mount_se2: np.ndarray):
         """Levelled ``(t_x, t_z)`` prior (2,) and its (2, 2) covariance for a partial step of

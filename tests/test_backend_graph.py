@@ -510,30 +510,37 @@ def test_a_keyframe_link_outside_the_graph_is_refused():
         g.add_frame(_results(steps)[1])
 
 
-def test_the_motion_prior_takes_the_place_of_the_front_ends_guess():
+def test_the_motion_prior_weighs_the_front_ends_guess_as_one_error_per_gap():
     """Across a gap of partial steps (yaw measured, translation guessed at the velocity
-    before it, stated at 2 mm) the robot slowed from 40 to 20 mm a step. The guess copied
-    into every step of the gap errs alike in all of them; counted next to the motion prior
-    it drags the gap towards the old speed. Left out, the gap follows the measured speeds
-    on both sides (measured: end point 10 mm off instead of 108 mm; the chain 110 mm)."""
+    before it) the robot slowed from 40 to 20 mm a step. Each guess states its own error
+    honestly: the k-th copy is 2k mm off and says hypot(1, 2k) mm. But the errors are
+    alike, all of one sign, and ten steps each trusted as independent drag the gap towards
+    the old speed next to the motion prior (``motion_prior_guess: keep``, the default).
+    Weighted as one error shared by the gap (``correlated``) the guess pulls far less; left out
+    (``replace``), the gap follows the measured speeds on both sides. Measured: end point
+    67 mm off kept, 40 mm correlated, 10 mm replaced; the chain 110 mm."""
     n, gap = 40, range(15, 25)
     truth = [0.04 if k < 15 else (0.02 if k >= 25 else 0.04 - 0.002 * (k - 14)) for k in range(1, n)]
     steps = []
     for k, d in enumerate(truth, start=1):
         if k in gap:
-            info = _info(2e-3, 2e-3, 1e-4)
-            guess = _info(2e-3, 2e-3, 1e3)  # the translation is all guess, the yaw measured
-            steps.append(Step(np.array([0.04, 0.0, 0.0]), info, STATUS_PARTIAL, guess_information=guess))
+            copies = k - gap.start + 1
+            s = math.hypot(1e-3, 2e-3 * copies)
+            info = _info(s, s, 1e-4)
+            guess = _info(s, s, 1e3)  # the translation is all guess, the yaw measured
+            steps.append(Step(np.array([0.04, 0.0, 0.0]), info, STATUS_PARTIAL, guess_information=guess,
+                              guess_copies=copies))
         else:
             steps.append(Step(np.array([d, 0.0, 0.0]), _info(1e-3, 1e-3, 1e-4), STATUS_DPP))
     end = sum(truth)
     errs = {}
-    for replace in (True, False):
-        g = PlanarPoseGraph(BackendConfig(manhattan=False, motion_prior_replaces_guess=replace))  # off by default
+    for mode in ("keep", "correlated", "replace"):
+        g = PlanarPoseGraph(BackendConfig(manhattan=False, motion_prior_guess=mode))
         for r in _results(steps):
             g.add_frame(r)
-        errs[replace] = abs(g.optimize()[-1, 0] - end)
+        errs[mode] = abs(g.optimize()[-1, 0] - end)
     raw_err = abs(sum(s.pose[0] for s in steps) - end)
-    assert raw_err > 0.09                      # the guess alone: 10 steps 9 mm too long on average
-    assert errs[False] > 0.5 * raw_err         # counted twice, the guess still dominates
-    assert errs[True] < 0.15 * raw_err         # the prior alone bridges the change of speed
+    assert raw_err > 0.1                       # the guess alone: 10 steps 11 mm too long on average
+    assert errs["keep"] > 0.5 * raw_err        # ten independent guesses outweigh the prior
+    assert errs["correlated"] < 0.7 * errs["keep"]
+    assert errs["replace"] < 0.15 * raw_err    # the prior alone bridges the change of speed

@@ -49,9 +49,10 @@ def test_guess_states_the_error_of_the_step_it_copies():
         t_true = np.array([0.0, 0.0, -0.010])
         _measure(odo, 0.0, t_true + np.array([0.0, 0.0, 0.005]), 0.005)
         true_step, _ = lev_motion_to_base_step(0.0, t_true, None, MOUNT_SE2)
-        for _ in range(5):
+        for k in range(1, 6):
             step, _ = odo._partial_or_bridge([], [], mf_yaw, MOUNT_SE2, FrameDiagnostics())
             assert step.status == (STATUS_BRIDGED if mf_yaw is None else STATUS_PARTIAL)
+            assert step.guess_copies == k  # the k-th copy of one error (the back-end weighs them as one)
             sigma = np.sqrt(np.diag(np.linalg.inv(step.information)))
             err = step.pose - true_step
             assert abs(err[0]) > 0.004  # the copied error is there ...
