@@ -20,16 +20,13 @@ import numpy as np
 from planar_vo.core.geometry import se2_between
 from planar_vo.io.opener import open_log
 from planar_vo.io.trajectory import read_tum_trajectory
+from planar_vo.io.wheel_odom import planar_pose
 
 
 def base_poses(tum: Path, T_base_cam: np.ndarray) -> np.ndarray:
     """(N, 3) base_link ``(x, y, yaw)`` of a TUM file of camera poses."""
     inv = np.linalg.inv(T_base_cam)
-    out = []
-    for P in read_tum_trajectory(tum).poses:
-        T = P @ inv
-        out.append((T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])))
-    return np.array(out)
+    return np.array([planar_pose(P @ inv) for P in read_tum_trajectory(tum).poses])
 
 
 def gaps(steps_csv: Path, min_len: int) -> list[tuple[int, int]]:
