@@ -532,6 +532,16 @@ class PlanarOdometry:
         color, depth = self._check(frame)
         self._tracked[frame.index] = self._track(color, depth)
 
+    def take_tracked(self, frame: RGBDFrame) -> tuple:
+        """The stored result of :meth:`track` for ``frame``, removed from this object: a
+        reader process's copy of the odometry tracks, and hands it to the main copy's
+        :meth:`give_tracked` (the tracker's state stays in the reader)."""
+        return self._tracked.pop(frame.index)
+
+    def give_tracked(self, frame: RGBDFrame, tracked: tuple) -> None:
+        """Store another copy's :meth:`take_tracked` of ``frame`` as if :meth:`track` had run here."""
+        self._tracked[frame.index] = tracked
+
     # ------------------------------------------------------------------ stages
     def _track(self, color, depth) -> tuple:
         """``(FeatureSet, matches, corners detected, clock seconds)`` of the next frame."""

@@ -175,6 +175,20 @@ class RGBDLog(ABC):
     def close(self) -> None:  # noqa: B027 - optional for sources without open files
         pass
 
+    # -------------------------------------------- a frames() pass in another process
+    def reopen(self) -> None:  # noqa: B027 - optional for sources without open files
+        """Open the log's files afresh, for a forked process that iterates :meth:`frames`:
+        a descriptor inherited across ``fork`` shares its offset with the parent's."""
+
+    def pass_state(self) -> dict:
+        """What a :meth:`frames` pass recorded on this object (picklable), so that the
+        process that forked the pass's process can :meth:`restore_pass_state` it."""
+        return {"stats": self.stats}
+
+    def restore_pass_state(self, state: dict) -> None:
+        """Take over what a :meth:`frames` pass in another process recorded (:meth:`pass_state`)."""
+        self.stats = state["stats"]
+
     def __enter__(self):
         return self
 

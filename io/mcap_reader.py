@@ -408,6 +408,16 @@ class McapRGBDLog(RGBDLog):
         if stop_at:
             self._raise_cut(stop_at[0], yielded, stats["paired"])
 
+    def reopen(self) -> None:
+        self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close(); the inherited one is the parent's
+
+    def pass_state(self) -> dict:
+        return {**super().pass_state(), "facts": self._facts}
+
+    def restore_pass_state(self, state: dict) -> None:
+        super().restore_pass_state(state)
+        self._facts = state["facts"]
+
     def _sample_every(self) -> int:
         """summary() decodes the depth of every n-th paired frame; this n."""
         expected = min(self._count(self.color_topic), self._count(self.depth_topic))

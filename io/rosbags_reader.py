@@ -134,6 +134,12 @@ class RosbagsRGBDLog(McapRGBDLog):
         if not conns:
             raise InputError(f"{self.path}: the {self.container} holds no topics")
 
+    def reopen(self) -> None:
+        # The inherited reader is left alone, not closed: it is the parent's (an SQLite
+        # connection must not be used across fork, not even to close it).
+        self._reader = None
+        self._open_container()
+
     def close(self) -> None:
         if self._reader is not None:
             reader, self._reader = self._reader, None

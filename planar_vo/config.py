@@ -37,6 +37,11 @@ class InputConfig:
     start: int = 0
     stop: Optional[int] = None
     stride: int = 1
+    #: Where frames are decoded and their corners tracked while the main thread works on
+    #: earlier ones: ``process`` (a forked child process, Linux; elsewhere a thread),
+    #: ``thread``. The same results either way; the process does not share the
+    #: interpreter lock with the main thread.
+    reader: Literal["process", "thread"] = "process"
 
     def __post_init__(self) -> None:
         given = [v is not None for v in (self.fx, self.fy, self.cx, self.cy)]

@@ -43,7 +43,7 @@ from planar_vo.io.atomic import write_text_atomic
 from planar_vo.io.cliargs import open_log_with_overrides
 from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write_poses_mcap, write_tum_trajectory
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
-from planar_vo.prefetch import Prefetcher
+from planar_vo.prefetch import Prefetcher, ProcessPrefetcher, process_prefetch_available
 from planar_vo.progress import Progress
 from planar_vo.wheel_fusion import (motion_with_wheel_odometry, wheel_steps_for_run, wheel_trajectory,
                                     write_wheel_outputs)
@@ -76,9 +76,10 @@ def run(log_path: str | Path, out_dir: str | Path, config: RunConfig | None = No
         progress: bool = True, gt_path: str | Path | None = None) -> RunResult:
     """Run the whole job on one log; see the module docstring for the outputs.
 
-    Threads: the main thread runs the front-end and back-end; a reader thread decodes the
-    next frames and tracks their corners (:meth:`PlanarOdometry.track`); a third loads
-    the output stage's modules meanwhile. The log is read once: the summary in the report
+    Threads: the main thread runs the front-end and back-end; a reader decodes the next
+    frames and tracks their corners (:meth:`PlanarOdometry.track`), in a forked process
+    on Linux (``input.reader``), else in a thread; a side thread loads the output
+    stage's modules meanwhile. The log is read once: the summary in the report
     comes from the same pass (``summary()`` after a complete ``frames()`` pass). The
     kernels underneath (OpenCV, BLAS) get one thread each for the run: the parallelism
     is the pipeline's, and on 2 cores more threads only compete with it (the previous
@@ -223,7 +224,8 @@ class _Stopwatch:
 
     def finish(self) -> None:
         self.wall_total = time.perf_counter() - self.t_start
-        self.cpu["process"] = time.process_time() - self.cpu_start  # all threads, OpenCV's workers included
+        # all threads, OpenCV's workers included, and the reader process's (when there is one)
+        self.cpu["process"] = time.process_time() - self.cpu_start + self.cpu.get("reader_process", 0.0)
 
 
 class _OutputImports:
@@ -340,21 +342,50 @@ def _shown_ahead(frames, odometry: PlanarOdometry, then=None, n: int = LOOK_AHEA
     yield from it
 
 
+def _reader(log, odometry, c):
+    """``(reader, ahead)``: the producer of decoded, tracked frames of the ``input`` range
+    ``c`` and its tracking stage (:class:`_TrackAhead`).
+
+    ``input.reader: process`` (where the platform can fork): a child process decodes and
+    tracks on its copy of the odometry, with an interpreter lock of its own, and hands
+    each frame's corners over (``take_tracked`` -> ``give_tracked``); at the end, what
+    the log recorded during the pass and the tracking's time come back too. (A second
+    thread in the child, decoding while it tracks, was slower on 2 cores: 0.93-0.97 of
+    one thread's frames/s, three runs each.) Otherwise a thread of this process decodes
+    and tracks.
+    """
+    ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odometry)
+    if c.reader != "process" or not process_prefetch_available():
+        return Prefetcher(ahead, depth=4), ahead
+    size = log.intrinsics.width * log.intrinsics.height
+    reader = ProcessPrefetcher(
+        ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
+        pack=lambda frame: (frame, odometry.take_tracked(frame)),
+        unpack=lambda item: _handed_over(odometry, *item),
+        finish=lambda: {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)},
+        child_init=log.reopen)
+    return reader, ahead
+
+
+def _handed_over(odometry, frame, tracked):
+    odometry.give_tracked(frame, tracked)
+    return frame
+
+
 def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, clock: _Stopwatch,
                     progress: bool, ahead_seen=None) -> _FrameLoop:
-    """Per frame: track (reader thread) -> estimate (front-end) -> add to the graph (with
+    """Per frame: track (reader) -> estimate (front-end) -> add to the graph (with
     the wheel odometry's step over the same interval when ``wheel`` is given) -> offer it to
     the loop closer (keyframes, candidates, verification, closure factors). ``ahead_seen()``
     runs once the odometry has seen the first frames ahead (``_shown_ahead``).
 
-    The reader thread decodes each frame and tracks its corners (PlanarOdometry.track),
-    both GIL-free for the most part, while the main thread works on earlier frames.
+    The reader (:func:`_reader`) decodes each frame and tracks its corners
+    (PlanarOdometry.track) while the main thread works on earlier frames.
     """
     c = config.input
     loop = _FrameLoop()
     bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
-    ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odometry)
-    reader = Prefetcher(ahead, depth=4)
+    reader, ahead = _reader(log, odometry, c)
     timings, cpu = clock.wall, clock.cpu
     t_wait = time.perf_counter()
     try:
@@ -383,6 +414,11 @@ def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, cloc
         loop.partial, loop.stop_reason = True, "interrupted by the user (Ctrl-C)"
     except PartialResult as exc:
         loop.partial, loop.stop_reason = True, str(exc)
+    if isinstance(reader, ProcessPrefetcher):
+        if reader.finished is not None:
+            log.restore_pass_state(reader.finished["log"])
+            ahead.wall_s, ahead.cpu_s = reader.finished["track"]
+        cpu["reader_process"] += reader.cpu_s  # its own CPU, not the parent process's
     timings["read_decode_background"] += reader.busy_s - ahead.wall_s
     cpu["read_decode_background"] += reader.busy_cpu_s - ahead.cpu_s
     timings["track_background"] += ahead.wall_s

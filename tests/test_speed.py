@@ -10,7 +10,10 @@ import pytest
 from threadpoolctl import threadpool_info
 
 from planar_vo import pipeline
-from planar_vo.prefetch import Prefetcher
+from planar_vo.core.errors import PartialResult
+from planar_vo.prefetch import Prefetcher, ProcessPrefetcher, process_prefetch_available
+
+needs_fork = pytest.mark.skipif(not process_prefetch_available(), reason="the process reader needs fork (Linux)")
 
 
 def _blas_threads() -> list[int]:
@@ -82,6 +85,93 @@ def test_prefetcher_reraises_and_stops_early():
         assert next(iter(p)) == 1
     assert not p._thread.is_alive()  # closed by the context manager
     stop.set()
+
+
+@needs_fork
+def test_process_prefetcher_hands_over_items_in_order_with_their_arrays():
+    """Image-sized arrays through the shared slots (more items than slots, so each slot is
+    reused), small ones and the rest through the pipe; ``pack`` runs in the child,
+    ``unpack`` and the result of ``finish`` reach the parent."""
+    def source():
+        for i in range(9):
+            yield i, np.full((540, 960), i, np.float32), np.arange(i)
+
+    with ProcessPrefetcher(source(), depth=2, slot_bytes=4 << 20, pack=lambda x: (x[0] * 10,) + x[1:],
+                           unpack=lambda x: (x[0] + 1,) + x[1:], finish=lambda: {"seen": "all"}) as p:
+        got = list(p)
+    assert [g[0] for g in got] == [10 * i + 1 for i in range(9)]
+    for i, (_, img, small) in enumerate(got):
+        assert img.shape == (540, 960) and img.dtype == np.float32 and np.all(img == i)
+        np.testing.assert_array_equal(small, np.arange(i))
+        img[0, 0] = -1.0  # the parent's own copy: writable, and the slot is not
+    assert p.finished == {"seen": "all"}
+    assert p.cpu_s > 0 and p.busy_cpu_s > 0
+
+
+@needs_fork
+def test_process_prefetcher_sends_an_item_larger_than_a_slot_whole():
+    def source():
+        yield np.arange(3 << 18, dtype=np.float64)  # 6 MB
+        yield np.arange(4.0)
+
+    with ProcessPrefetcher(source(), slot_bytes=1 << 20) as p:
+        big, small = list(p)
+    np.testing.assert_array_equal(big, np.arange(3 << 18, dtype=np.float64))
+    np.testing.assert_array_equal(small, np.arange(4.0))
+
+
+@needs_fork
+def test_process_prefetcher_reraises_where_the_stream_stopped_and_stops_early():
+    """The items before the error arrive first, then the error with its own type (the
+    pipeline tells a log cut short, PartialResult, from other failures); ``finish`` still
+    reports what the source did. An early exit kills the child."""
+    def source():
+        yield 1
+        yield 2
+        raise PartialResult("log.mcap: log is cut short")
+
+    got = []
+    with ProcessPrefetcher(source(), finish=lambda: "finished") as p:
+        with pytest.raises(PartialResult, match="cut short"):
+            for x in p:
+                got.append(x)
+    assert got == [1, 2] and p.finished == "finished"
+
+    def endless():
+        i = 0
+        while True:
+            i += 1
+            yield np.zeros(1 << 18)
+
+    with ProcessPrefetcher(endless(), depth=2) as p:
+        next(iter(p))
+    assert not p._proc.is_alive()
+
+
+@needs_fork
+def test_process_reader_gives_the_thread_readers_results(lturn_log, tmp_path):
+    """``input.reader: process`` decodes and tracks in a forked child: the same steps and
+    trajectories as the thread, the same log summary in the report (the counts the pass
+    recorded come back from the child), and the child's CPU in the run's total."""
+    import json
+
+    from planar_vo.config import load_config
+    from planar_vo.pipeline import run
+
+    reports = {}
+    for reader in ("thread", "process"):
+        cfg = load_config(None, {"output": {"plot": False, "poses_mcap": False},
+                                 "input": {"stop": 40, "reader": reader}})
+        reports[reader] = run(lturn_log, tmp_path / reader, cfg, progress=False).report
+    for name in ("raw.tum", "smoothed.tum", "steps.csv"):
+        assert (tmp_path / "thread" / name).read_text() == (tmp_path / "process" / name).read_text(), name
+    t, p = reports["thread"], reports["process"]
+    assert json.dumps(t["input"], sort_keys=True) == json.dumps(p["input"], sort_keys=True)
+    assert t["frames"] == p["frames"] and p["frames"]["with_pose"] == 40
+    cpu = p["cpu_ms_per_frame"]
+    assert cpu["reader_process"] >= 0.9 * (cpu["read_decode_background"] + cpu["track_background"])
+    assert cpu["track_background"] > 0.3 and "reader_process" not in t["cpu_ms_per_frame"]
+    assert cpu["process"] >= cpu["reader_process"] + cpu["frontend"]
 
 
 def test_report_has_cpu_per_stage(lturn_log, tmp_path):

@@ -97,7 +97,7 @@ def _run_planar_vo(log_path: Path, out_dir: Path, config, gt) -> dict:
     rep = res.report
     n = rep["frames"]["with_pose"]
     t = rep["timings_s"]
-    # The method's own processing wherever it runs: corner tracking runs in the reader thread.
+    # The method's own processing wherever it runs: corner tracking runs in the reader.
     own = t.get("frontend", 0.0) + t.get("backend", 0.0) + t.get("track_background", 0.0)
     fr = rep["frames"]
     failures = int(fr.get("bridged", 0)) + int(fr.get("failed", 0))

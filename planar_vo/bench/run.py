@@ -3,10 +3,10 @@
 ``planar-vo bench run LOG [LOG ...] [--frames N] [--repeat N] [--config YAML] [--online] [--json PATH]``
 
 Each run is the whole job of ``planar-vo run`` (:func:`planar_vo.pipeline.run`: MCAP
-reading, decoding and corner tracking in the reader thread, front-end, back-end,
+reading, decoding and corner tracking in the reader, front-end, back-end,
 optimisation, the log summary and every output file) in a fresh Python process, so that its peak RSS is
 its own. Printed per log and run: frames per second end to end (wall clock, the figure
-``planar-vo run`` prints), the process's CPU milliseconds per frame (all threads) and
+``planar-vo run`` prints), the run's CPU milliseconds per frame (all threads, the reader process's included) and
 the peak RSS; then the median over the runs of the CPU milliseconds per frame of every
 stage -- the front-end's own stages in CPU time of the main thread -- and the load
 average. On a machine shared with other jobs, wall-clock fps depends on the load; CPU
@@ -38,19 +38,20 @@ _CHILD_FLAG = "--_child"
 
 #: Stages of report.json ``cpu_ms_per_frame`` in print order, with their labels.
 STAGES = (("outputs_import_background", "output-stage imports (side thread)"),
-          ("read_decode_background", "read + decode (reader thread)"),
-          ("track_background", "corner tracking (reader thread)"),
+          ("read_decode_background", "read + decode (reader)"),
+          ("track_background", "corner tracking (reader)"),
+          ("reader_process", "reader process (input.reader: process)"),
           ("frontend", "front-end (main thread)"),
           ("frontend.planes", "  planes"),
           ("frontend.manhattan", "  manhattan"),
-          ("frontend.features", "  features (tracking: reader thread)"),
+          ("frontend.features", "  features (tracking: reader)"),
           ("frontend.estimate", "  estimate"),
           ("backend", "back-end add_frame"),
           ("loops", "loop closure: keyframes, candidates, verification"),
           ("summary", "log summary for the report (once)"),
           ("optimize", "optimize (once)"),
           ("write", "write outputs (once)"),
-          ("process", "whole process, all threads"))
+          ("process", "whole run, all threads and processes"))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

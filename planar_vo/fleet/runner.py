@@ -9,6 +9,7 @@ hash, configuration and planar-vo version is skipped without starting a task.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import logging
@@ -247,6 +248,9 @@ def execute(ray, jobs: list[Job], config, gt_from_logs: bool, workers: int, bar:
     Each record is saved to its folder as soon as it arrives, so an interrupt loses only
     the logs still running (their tasks are cancelled, their folders re-run next time)."""
     task = ray.remote(num_cpus=1, memory=TASK_MEMORY_MB * 1024 ** 2, max_calls=1, max_retries=0)(run_log)
+    # A task has one CPU (the fleet's parallelism is across logs), and a Ray worker is no
+    # process to fork: its reader is a thread (the same results as the reader process).
+    config = dataclasses.replace(config, input=dataclasses.replace(config.input, reader="thread"))
     pending = [j for j in jobs if j.record is None]
     running: dict = {}
     try:
