@@ -163,7 +163,9 @@ def make_keyframe(index: int, stamp: float, gray: np.ndarray, depth: np.ndarray,
     if gray.ndim != 2 or gray.dtype != np.uint8 or depth.shape != gray.shape:
         raise ValueError(f"make_keyframe needs gray (H, W) uint8 and depth of the same shape, got "
                          f"{gray.shape} {gray.dtype} and {depth.shape}")
-    depth = np.nan_to_num(depth.astype(np.float32, copy=False), nan=0.0)
+    # NaN and inf need no replacing: lifting reads only depths within the range (a whole
+    # image's nan_to_num cost a keyframe 1.3 ms)
+    depth = depth.astype(np.float32, copy=False)
     px, xy, P_cam, desc, octave = _orb(gray, depth, intrinsics, config, (feature_config or FeatureConfig(), depth_range))
     x_lev, P_lev = levelled_features(FeatureSet(px=px, xy=xy, P_cam=P_cam), np.asarray(R_lev_cam, float))
     return Keyframe(int(index), float(stamp), desc, px, x_lev, P_lev, list(manhattan), bag_of_words(desc, config),

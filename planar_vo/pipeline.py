@@ -124,17 +124,19 @@ class _TrackAhead:
                 close()
 
 
-def _prepare_outputs(config: RunConfig) -> float:
+def _prepare_outputs(config: RunConfig, poses_format: str) -> float:
     """Import the output stage's modules (matplotlib alone takes ~0.5 s) while the frames
     are processed, so that the end of the run does not wait for them; returns the CPU
-    seconds this took."""
+    seconds this took. ``poses_format``: ``poses.mcap``'s schemas (``foxglove`` or
+    ``ros2``): only that family's modules (each takes ~0.15-0.3 s of CPU)."""
     c0 = time.thread_time()
     try:
-        if config.output.poses_mcap:
+        if config.output.poses_mcap and poses_format == "foxglove":
             import foxglove_schemas_protobuf.FrameTransforms_pb2  # noqa: F401
             import foxglove_schemas_protobuf.PoseInFrame_pb2  # noqa: F401
             import foxglove_schemas_protobuf.PosesInFrame_pb2  # noqa: F401
             import mcap_protobuf.writer  # noqa: F401
+        elif config.output.poses_mcap:
             import rosbags.rosbag2  # noqa: F401
 
             from planar_vo.io import rosmsg
@@ -168,6 +170,7 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     prepared = _OutputImports(config)
     with open_input(log_path, config) as log:
         log.set_color_mode("gray")  # the odometry and loop closure read intensity only
+        prepared.for_log(log)
         odometry, graph = _level(log, config)
         wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
         closer = _loop_closer(log, odometry, graph, config)
@@ -240,11 +243,17 @@ class _OutputImports:
 
     def __init__(self, config: RunConfig):
         self._config, self._future = config, None
+        self._format = config.output.poses_format
+
+    def for_log(self, log) -> None:
+        """Prepare ``poses.mcap``'s schemas for ``log`` (``output.poses_format: auto``)."""
+        if self._config.output.poses_format == "auto":
+            self._format = poses_format_for(getattr(log, "format", ""))
 
     def start(self) -> None:
         if self._future is None:
             side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-outputs")
-            self._future = side.submit(_prepare_outputs, self._config)
+            self._future = side.submit(_prepare_outputs, self._config, self._format)
             side.shutdown(wait=False)
 
     def result(self) -> float:
@@ -358,12 +367,15 @@ def _reader(log, odometry, c):
     if c.reader != "process" or not process_prefetch_available():
         return Prefetcher(ahead, depth=4), ahead
     size = log.intrinsics.width * log.intrinsics.height
-    reader = ProcessPrefetcher(
-        ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
-        pack=lambda frame: (frame, odometry.take_tracked(frame)),
-        unpack=lambda item: _handed_over(odometry, *item),
-        finish=lambda: {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)},
-        child_init=log.reopen)
+    try:
+        reader = ProcessPrefetcher(
+            ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
+            pack=lambda frame: (frame, odometry.take_tracked(frame)),
+            unpack=lambda item: _handed_over(odometry, *item),
+            finish=lambda: {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)},
+            child_init=log.reopen)
+    except OSError:  # no shared memory or semaphores here (e.g. a container without /dev/shm)
+        return Prefetcher(ahead, depth=4), ahead
     return reader, ahead
 
 
@@ -386,6 +398,10 @@ def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, cloc
     loop = _FrameLoop()
     bar = Progress(_total_frames(log.expected_frames(), c), enabled=progress)
     reader, ahead = _reader(log, odometry, c)
+    if ahead_seen is not None and isinstance(reader, ProcessPrefetcher):
+        # the reader does not share this process's interpreter lock: what waits for the
+        # first frames may run while they are decoded
+        ahead_seen, _ = None, ahead_seen()
     timings, cpu = clock.wall, clock.cpu
     t_wait = time.perf_counter()
     try:

@@ -168,8 +168,11 @@ class ProcessPrefetcher:
             done = finish() if finish is not None else None
         except BaseException as exc:  # noqa: BLE001
             done, failure = None, failure or _picklable(exc)
-        tx.send((_FAIL if failure is not None else _END, (busy, cpu, time.process_time(), done, failure), None))
-        tx.close()
+        try:
+            tx.send((_FAIL if failure is not None else _END, (busy, cpu, time.process_time(), done, failure), None))
+            tx.close()
+        except OSError:  # the parent is gone (the pipe is closed): nobody to tell
+            pass
 
     def _wait_for_slot(self) -> None:
         """Until the parent has copied the next slot's previous item out; exit if the

@@ -269,3 +269,21 @@ def test_plain_walls_lower_the_fast_threshold():
     assert c.accepted, (c.reason, c.matches, c.inliers, c.spread_m)
     e = _error(c, a, b)
     assert math.hypot(e[0], e[1]) < 0.05 and abs(math.degrees(e[2])) < 0.5, e
+
+
+def test_unreadable_depth_is_no_reading_whatever_its_value(corridor):
+    """NaN, inf and -inf in the depth image lift nothing, as 0 does: the keyframe is the same."""
+    f = corridor.renderer.render(np.array([3.0, 0.0, 0.0]), index=900)
+    gray = cv2.cvtColor(f.rgbd.color, cv2.COLOR_BGR2GRAY)
+    rng = np.random.default_rng(5)
+    holes = rng.random(f.rgbd.depth.shape)
+    whole = make_keyframe(0, 0.0, gray, f.rgbd.depth, corridor.K, np.eye(3), [], CONFIG)
+    kfs = []
+    for bad in (0.0, np.nan, np.inf, -np.inf):
+        depth = f.rgbd.depth.copy()
+        depth[holes < 0.1] = bad
+        kfs.append(make_keyframe(0, 0.0, gray, depth, corridor.K, np.eye(3), [], CONFIG))
+    assert len(kfs[0].desc) > 100 and not np.array_equal(kfs[0].P_lev, whole.P_lev)  # the holes count
+    for kf in kfs[1:]:
+        np.testing.assert_array_equal(kf.desc, kfs[0].desc)
+        np.testing.assert_array_equal(kf.P_lev, kfs[0].P_lev)

@@ -174,6 +174,22 @@ def test_process_reader_gives_the_thread_readers_results(lturn_log, tmp_path):
     assert cpu["process"] >= cpu["reader_process"] + cpu["frontend"]
 
 
+def test_without_shared_memory_the_reader_is_a_thread(lturn_log, tmp_path, monkeypatch):
+    """Where the process reader cannot be set up (no /dev/shm for its semaphore, say), the
+    run reads in a thread instead, with the same results."""
+    from planar_vo.config import load_config
+    from planar_vo.pipeline import run
+
+    def no_shm(*args, **kwargs):
+        raise OSError(38, "Function not implemented")
+
+    monkeypatch.setattr(ProcessPrefetcher, "__init__", no_shm)
+    cfg = load_config(None, {"output": {"plot": False, "poses_mcap": False}, "input": {"stop": 12}})
+    rep = run(lturn_log, tmp_path / "run", cfg, progress=False).report
+    assert rep["frames"]["with_pose"] == 12 and "reader_process" not in rep["cpu_ms_per_frame"]
+    assert rep["cpu_ms_per_frame"]["track_background"] > 0.3
+
+
 def test_report_has_cpu_per_stage(lturn_log, tmp_path):
     from planar_vo.config import load_config
     from planar_vo.pipeline import run
