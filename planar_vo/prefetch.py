@@ -247,5 +247,7 @@ def _picklable(exc: BaseException) -> BaseException:
 
 def process_prefetch_available() -> bool:
     """Whether :class:`ProcessPrefetcher` can run here: Linux (``fork`` is the platform's
-    own start method; macOS's system libraries are not safe to fork with)."""
-    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+    own start method; macOS's system libraries are not safe to fork with), and not in a
+    daemonic process (a ``multiprocessing.Pool`` worker may not start children)."""
+    return (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+            and not multiprocessing.current_process().daemon)

@@ -190,6 +190,20 @@ def test_without_shared_memory_the_reader_is_a_thread(lturn_log, tmp_path, monke
     assert rep["cpu_ms_per_frame"]["track_background"] > 0.3
 
 
+def _available_in_worker(_):
+    return process_prefetch_available()
+
+
+@needs_fork
+def test_a_pool_worker_reads_in_a_thread():
+    """A daemonic process (a multiprocessing.Pool worker running planar-vo's pipeline) may
+    not start children: the process reader is not offered there."""
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.map(_available_in_worker, [0]) == [False]
+
+
 def test_report_has_cpu_per_stage(lturn_log, tmp_path):
     from planar_vo.config import load_config
     from planar_vo.pipeline import run
