@@ -18,6 +18,8 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 
+from planar_vo.core.errors import PartialResult
+
 _DONE = object()
 _END, _FAIL = "__end__", "__fail__"
 
@@ -112,14 +114,17 @@ class ProcessPrefetcher:
     child's changes, except what it hands back: ``pack(item)`` in the child makes what is
     sent, ``unpack(sent)`` in the parent makes what is yielded; ``finish()`` runs in the
     child after the last item (or after the source raised) and its (picklable) result is
-    :attr:`finished` in the parent once the stream ended. ``child_init()`` runs first in the child (e.g. reopen files: the descriptors
-    and their offsets are shared with the parent).
+    :attr:`finished` in the parent once the stream ended. ``child_init()`` runs first in
+    the child (e.g. reopen files: the descriptors and their offsets are shared with the
+    parent).
 
     As :class:`Prefetcher`: exceptions raised by ``source`` (picklable ones keep their
     type) are re-raised in the consumer where the stream stopped; ``busy_s`` and
     ``busy_cpu_s`` are the producer's own wall and CPU time; use as a context manager so
     that an early exit stops the child. ``cpu_s``: the child process's whole CPU time
-    (all its threads), known once the stream ended. POSIX only (``fork``).
+    (all its threads), known once the stream ended. A child that dies without a word
+    (killed, out of memory) ends the stream with :class:`PartialResult` after the items
+    it sent. POSIX only (``fork``).
     """
 
     def __init__(self, source: Iterable, *, pack: Callable = _same, unpack: Callable = _same, depth: int = 4,
@@ -200,7 +205,13 @@ class ProcessPrefetcher:
     def __iter__(self) -> Iterator:
         ring = memoryview(self._ring)
         while not self._ended:
-            slot, where, data = self._rx.recv()
+            try:
+                slot, where, data = self._rx.recv()
+            except EOFError:  # every write end is closed: the child died without a word
+                self._ended = True
+                self._proc.join(timeout=5.0)
+                raise PartialResult(f"the reader process stopped (exit code {self._proc.exitcode}) before the "
+                                    "end of the log; the frames it read are processed") from None
             if slot in (_END, _FAIL):
                 self.busy_s, self.busy_cpu_s, self.cpu_s, self.finished, failure = where
                 self._ended = True

@@ -149,6 +149,25 @@ def test_process_prefetcher_reraises_where_the_stream_stopped_and_stops_early():
 
 
 @needs_fork
+def test_a_reader_process_that_dies_ends_the_stream_as_a_partial_result():
+    """Killed (out of memory, say) after two items: the parent gets those two, then a
+    PartialResult that says so (the pipeline writes what it computed), not a hang."""
+    import os
+
+    def source():
+        yield 1
+        yield 2
+        os._exit(9)
+
+    got = []
+    with ProcessPrefetcher(source()) as p:
+        with pytest.raises(PartialResult, match="exit code 9"):
+            for x in p:
+                got.append(x)
+    assert got == [1, 2]
+
+
+@needs_fork
 def test_process_reader_gives_the_thread_readers_results(lturn_log, tmp_path):
     """``input.reader: process`` decodes and tracks in a forked child: the same steps and
     trajectories as the thread, the same log summary in the report (the counts the pass
