@@ -260,6 +260,8 @@ def test_bench_run_prints_figures_and_checks_results(lturn_log, tmp_path, capsys
     assert log["frames"] == 12 and len(log["runs"]) == 1
     run0 = log["runs"][0]
     assert run0["fps"] > 0 and 50 < run0["peak_rss_mb"] < 4000
+    if process_prefetch_available():  # the reader process's own peak, printed beside the main one
+        assert 20 < run0["reader_peak_rss_mb"] < 4000 and "(reader process" in out
     assert run0["cpu_ms_per_frame"]["frontend.planes"] > 0
     kept = keep / lturn_log.stem / "run0"
     assert (kept / "raw.tum").is_file() and (kept / "smoothed.tum").is_file()
