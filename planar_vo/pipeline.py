@@ -357,8 +357,9 @@ def _reader(log, odometry, c):
 
     ``input.reader: process`` (where the platform can fork): a child process decodes and
     tracks on its copy of the odometry, with an interpreter lock of its own, and hands
-    each frame's corners over (``take_tracked`` -> ``give_tracked``); at the end, what
-    the log recorded during the pass and the tracking's time come back too. (A second
+    each frame's corners over (``take_tracked`` -> ``give_tracked``) with what the log
+    recorded so far (``pass_state``); at the end, the log's final pass state and the
+    tracking's time come back too. (A second
     thread in the child, decoding while it tracks, was slower on 2 cores: 0.93-0.97 of
     one thread's frames/s, three runs each.) Otherwise a thread of this process decodes
     and tracks.
@@ -370,8 +371,8 @@ def _reader(log, odometry, c):
     try:
         reader = ProcessPrefetcher(
             ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
-            pack=lambda frame: (frame, odometry.take_tracked(frame)),
-            unpack=lambda item: _handed_over(odometry, *item),
+            pack=lambda frame: (frame, odometry.take_tracked(frame), log.pass_state()),
+            unpack=lambda item: _handed_over(odometry, log, *item),
             finish=lambda: {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)},
             child_init=log.reopen)
     except OSError:  # no shared memory or semaphores here (e.g. a container without /dev/shm)
@@ -379,8 +380,11 @@ def _reader(log, odometry, c):
     return reader, ahead
 
 
-def _handed_over(odometry, frame, tracked):
+def _handed_over(odometry, log, frame, tracked, pass_state):
+    """``frame`` with its corners given to ``odometry`` and the log's pass state as of it
+    (counts of skipped frames: what a run stopped early reports)."""
     odometry.give_tracked(frame, tracked)
+    log.restore_pass_state(pass_state)
     return frame
 
 

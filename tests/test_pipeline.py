@@ -136,6 +136,33 @@ def test_corrupt_frame_is_skipped_counted_and_named(lturn_log, tmp_path, mcap_re
     assert len(read_tum_trajectory(tmp_path / "run" / "smoothed.tum")) == 59
 
 
+@pytest.mark.parametrize("reader", ["process", "thread"])
+def test_a_run_stopped_early_still_counts_the_frames_it_skipped(lturn_log, tmp_path, mcap_rewriter,
+                                                                monkeypatch, reader):
+    """Interrupted after a corrupt frame: the report still names it and counts the pairs
+    read, whichever reader read them (the process hands its counts over with each frame)."""
+    from planar_vo.frontend import odometry
+
+    bad = tmp_path / "bad.mcap"
+    mcap_rewriter(lturn_log, bad, lambda topic, k, data: data[: len(data) // 2]
+                  if "image_color" in topic and k == 30 else data)
+    real = odometry.PlanarOdometry.process
+
+    def process(self, frame):
+        if frame.index == 45:
+            raise KeyboardInterrupt
+        return real(self, frame)
+
+    monkeypatch.setattr(odometry.PlanarOdometry, "process", process)
+    cfg = tmp_path / "reader.yaml"
+    cfg.write_text(f"input:\n  reader: {reader}\n")
+    code = main(["run", str(bad), "--out", str(tmp_path / "run"), "--quiet", "--no-plot", "--config", str(cfg)])
+    assert code == 3
+    r = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert r["partial"] and r["frames"]["with_pose"] == 44
+    assert r["frames"]["failed"] == 1 and r["frames"]["paired"] >= 45
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["run", "/nonexistent/x.mcap", "--out", "OUT"], "x.mcap"),
     (["run", "LOG", "--out", "OUT", "--fx", "500"], "fx, fy, cx, cy"),
