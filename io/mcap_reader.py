@@ -412,11 +412,14 @@ class McapRGBDLog(RGBDLog):
         self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close(); the inherited one is the parent's
 
     def pass_state(self) -> dict:
-        return {**super().pass_state(), "facts": self._facts}
+        # the ground truth too, once read (a reader process reads it when its pass is done)
+        return {**super().pass_state(), "facts": self._facts, "gt": self._gt_cache}
 
     def restore_pass_state(self, state: dict) -> None:
         super().restore_pass_state(state)
         self._facts = state["facts"]
+        if state.get("gt") is not None:
+            self._gt_cache = state["gt"]
 
     def _sample_every(self) -> int:
         """summary() decodes the depth of every n-th paired frame; this n."""

@@ -373,11 +373,23 @@ def _reader(log, odometry, c):
             ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
             pack=lambda frame: (frame, odometry.take_tracked(frame), log.pass_state()),
             unpack=lambda item: _handed_over(odometry, log, *item),
-            finish=lambda: {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)},
+            finish=lambda: _pass_done(log, ahead),
             child_init=log.reopen)
     except OSError:  # no shared memory or semaphores here (e.g. a container without /dev/shm)
         return Prefetcher(ahead, depth=4), ahead
     return reader, ahead
+
+
+def _pass_done(log, ahead: _TrackAhead) -> dict:
+    """What the reader process hands back when its pass is done: the log's pass state,
+    with the ground truth read meanwhile (the process has nothing else left to do, and the
+    report's summary would read it on the main thread; a failure here is left to that
+    read), and the tracking's time."""
+    try:
+        log.ground_truth  # noqa: B018 - read and cached for pass_state
+    except Exception:  # noqa: BLE001 - the main thread's summary reads it again and reports
+        pass
+    return {"log": log.pass_state(), "track": (ahead.wall_s, ahead.cpu_s)}
 
 
 def _handed_over(odometry, log, frame, tracked, pass_state):

@@ -193,6 +193,26 @@ def test_process_reader_gives_the_thread_readers_results(lturn_log, tmp_path):
     assert cpu["process"] >= cpu["reader_process"] + cpu["frontend"]
 
 
+def test_a_pass_state_carries_the_ground_truth_read_in_the_reader(lturn_log):
+    """The reader process reads the ground truth when its pass is done; the main process
+    takes it over and does not read the log for it again."""
+    from planar_vo.io.opener import open_log
+
+    with open_log(lturn_log) as a, open_log(lturn_log) as b:
+        for _ in a.frames(stop=3):
+            pass
+        gt = a.ground_truth
+        assert gt is not None and len(gt.stamps) > 10
+        b.restore_pass_state(a.pass_state())
+
+        def no_reading():
+            raise AssertionError("the ground truth was read again")
+
+        b._read_ground_truth = no_reading
+        np.testing.assert_array_equal(b.ground_truth.poses, gt.poses)
+        assert b.stats == a.stats
+
+
 def test_without_shared_memory_the_reader_is_a_thread(lturn_log, tmp_path, monkeypatch):
     """Where the process reader cannot be set up (no /dev/shm for its semaphore, say), the
     run reads in a thread instead, with the same results."""
