@@ -359,25 +359,23 @@ def _reader(log, odometry, c):
     tracks on its copy of the odometry, with an interpreter lock of its own, and hands
     each frame's corners over (``take_tracked`` -> ``give_tracked``) with what the log
     recorded so far (``pass_state``); at the end, the log's final pass state and the
-    tracking's time come back too. (A second
-    thread in the child, decoding while it tracks, was slower on 2 cores: 0.93-0.97 of
-    one thread's frames/s, three runs each.) Otherwise a thread of this process decodes
-    and tracks.
+    tracking's time come back too. (A second thread in the child, decoding while it
+    tracks, was slower on 2 cores: 0.93-0.97 of one thread's frames/s, three runs each.)
+    Otherwise a thread of this process decodes and tracks.
     """
     ahead = _TrackAhead(log.frames(start=c.start, stop=c.stop, stride=c.stride), odometry)
-    if c.reader != "process" or not process_prefetch_available():
-        return Prefetcher(ahead, depth=4), ahead
-    size = log.intrinsics.width * log.intrinsics.height
-    try:
-        reader = ProcessPrefetcher(
-            ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
-            pack=lambda frame: (frame, odometry.take_tracked(frame), log.pass_state()),
-            unpack=lambda item: _handed_over(odometry, log, *item),
-            finish=lambda: _pass_done(log, ahead),
-            child_init=log.reopen)
-    except OSError:  # no shared memory or semaphores here (e.g. a container without /dev/shm)
-        return Prefetcher(ahead, depth=4), ahead
-    return reader, ahead
+    if c.reader == "process" and process_prefetch_available():
+        size = log.intrinsics.width * log.intrinsics.height
+        try:
+            return ProcessPrefetcher(
+                ahead, depth=4, slot_bytes=8 * size + (1 << 20),  # BGR + float32 depth + the corners
+                pack=lambda frame: (frame, odometry.take_tracked(frame), log.pass_state()),
+                unpack=lambda item: _handed_over(odometry, log, *item),
+                finish=lambda: _pass_done(log, ahead),
+                child_init=log.reopen), ahead
+        except OSError:  # no shared memory or semaphores here (e.g. a container without /dev/shm)
+            pass
+    return Prefetcher(ahead, depth=4), ahead
 
 
 def _pass_done(log, ahead: _TrackAhead) -> dict:
@@ -417,7 +415,8 @@ def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, cloc
     if ahead_seen is not None and isinstance(reader, ProcessPrefetcher):
         # the reader does not share this process's interpreter lock: what waits for the
         # first frames may run while they are decoded
-        ahead_seen, _ = None, ahead_seen()
+        ahead_seen()
+        ahead_seen = None
     timings, cpu = clock.wall, clock.cpu
     t_wait = time.perf_counter()
     try:

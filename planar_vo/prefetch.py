@@ -102,8 +102,8 @@ class ProcessPrefetcher:
     """Iterate ``source`` in a forked child process, at most ``depth`` items ahead.
 
     The thread of :class:`Prefetcher` shares the interpreter lock: on the demo log its
-    Python work (MCAP records, corner bookkeeping, about 6 ms a frame) interleaved with
-    the main thread's and cost the main thread more than its own length in waits. A child
+    Python work (MCAP records, corner bookkeeping: about a quarter of its samples in a
+    py-spy profile) interleaved with the main thread's, and each waited for the other. A child
     process has its own lock. Items travel pickled (protocol 5); their large buffers
     (the images) through a ring of ``depth`` shared-memory slots of ``slot_bytes`` each
     (one copy out of the slot into the parent), the rest through a pipe. An item whose
@@ -160,11 +160,12 @@ class ProcessPrefetcher:
                 except StopIteration:
                     break
                 bufs: list = []
-                data = pickle.dumps(pack(item), protocol=5, buffer_callback=bufs.append)
+                payload = pack(item)
+                data = pickle.dumps(payload, protocol=5, buffer_callback=bufs.append)
                 busy, cpu = busy + time.perf_counter() - t0, cpu + time.thread_time() - c0
                 self._wait_for_slot()
                 t0, c0 = time.perf_counter(), time.thread_time()
-                tx.send(self._to_slot(slot, bufs, data))
+                tx.send(self._to_slot(slot, payload, bufs, data))
                 slot = (slot + 1) % self._slots
                 busy, cpu = busy + time.perf_counter() - t0, cpu + time.thread_time() - c0
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
@@ -187,13 +188,14 @@ class ProcessPrefetcher:
             if os.getppid() != parent:
                 os._exit(1)
 
-    def _to_slot(self, slot: int, bufs: list, data: bytes) -> tuple:
-        """``(slot, [(offset, nbytes)], pickle)``: the buffers copied into the slot; or
-        ``(None, None, pickle with the buffers in-band)`` when they do not fit."""
+    def _to_slot(self, slot: int, payload, bufs: list, data: bytes) -> tuple:
+        """``(slot, [(offset, nbytes)], pickle)``: the buffers ``bufs`` of ``payload``'s
+        pickle ``data`` copied into the slot; or ``(None, None, payload pickled with its
+        buffers in-band)`` when they do not fit."""
         views = [b.raw() for b in bufs]
         if sum(_padded(v.nbytes) for v in views) > self._slot_bytes:
             self._free.release()
-            return None, None, pickle.dumps(pickle.loads(data, buffers=views), protocol=5)
+            return None, None, pickle.dumps(payload, protocol=5)
         base, off, where = slot * self._slot_bytes, 0, []
         for v in views:
             self._ring[base + off:base + off + v.nbytes] = v
