@@ -57,6 +57,7 @@ FEW_INLIERS = "few_inliers"
 POOR_SPREAD = "poor_spread"
 MANHATTAN_MISMATCH = "manhattan_mismatch"
 PRIOR_MISMATCH = "prior_mismatch"
+OUT_OF_VIEW = "out_of_view"
 
 
 @dataclass
@@ -277,7 +278,7 @@ class ClosureCheck:
     ``pose``: (3,) float64 SE(2) ``T_base_a_base_b`` ``(x, y, theta)`` (base_link, REP 103)
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
-    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``). ``spread_m``: std of the
+    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``, ``out_of_view``). ``spread_m``: std of the
     inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
     ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
     or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
@@ -521,6 +522,56 @@ def prior_distance(pose: np.ndarray, cov: np.ndarray, prior) -> float | None:
     return float(d @ np.linalg.solve(S, d))
 
 
+#: Slack of :func:`points_in_view` on top of the prior's gate: a point's own depth error
+#: (this fraction of its range; Kinect v2 depth errs by ~1 %) and the inlier test's reach.
+_VIEW_RANGE_SLACK = 0.1
+_VIEW_SLACK_M = 0.1
+
+
+def points_in_view(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, prior, config: PlaceConfig) -> int:
+    """How many of ``a``'s points with depth could be in ``b``'s view if the motion from
+    ``a`` to ``b`` is any that passes the prior gate: moved by ``prior`` (``T_base_a_base_b``
+    (3,) and its (3, 3) covariance, as :func:`verify_closure` takes it) into ``b``'s levelled
+    camera, within the bearings and the range of ``b``'s own points with depth, widened by
+    the gate (``sqrt(prior_gate_chi2)`` sigmas of the prior's heading and position) and a
+    slack for the points' own errors.
+
+    A match pairs a point of ``a`` with one of ``b``; an accepted closure moves the first
+    onto the second within the inlier test and lies within the gate of the prior, so with
+    fewer than ``min_inliers`` such points no closure can be accepted. Verification then
+    need not run (descriptor matching and RANSAC: 10-50 ms a pair), which is most of the
+    appearance candidates of a run without a revisit: keyframes facing another corridor.
+    """
+    fa, fb = _valid(a.P_lev), _valid(b.P_lev)
+    if len(fa) == 0 or len(fb) == 0:
+        return 0
+    pose, cov = np.asarray(prior[0], float), np.asarray(prior[1], float)
+    k = math.sqrt(config.prior_gate_chi2)
+    s_xy = k * geometry.largest_sigma(cov[:2, :2])
+    s_th = k * math.sqrt(max(float(cov[2, 2]), 0.0))
+    lev = geometry.base_step_to_lev_step(pose, geometry.mount_se2(T_base_cam))
+    yaw, t = geometry.pose_to_levelled_motion(lev)
+    Q = a.P_lev[fa] @ geometry.rot_y(yaw).T + t  # X_b = R_y(yaw) X_a + t
+    Pb = b.P_lev[fb]
+    bearing_b = np.arctan2(Pb[:, 0], Pb[:, 2])
+    r_q = np.hypot(Q[:, 0], Q[:, 2])
+    slack = s_xy + _VIEW_SLACK_M + _VIEW_RANGE_SLACK * r_q
+    margin = s_th + np.arctan2(slack, np.maximum(r_q, 1e-9))
+    bearing_q = np.arctan2(Q[:, 0], Q[:, 2])
+    lo, hi = float(bearing_b.min()), float(bearing_b.max())
+    r_max = float(np.hypot(Pb[:, 0], Pb[:, 2]).max())
+    seen = (bearing_q >= lo - margin) & (bearing_q <= hi + margin) & (r_q <= r_max + slack)
+    return int(seen.sum())
+
+
+def _out_of_view(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, prior, config: PlaceConfig) -> bool:
+    """Fewer than ``min_inliers`` of ``a``'s points can be in ``b``'s view under ``prior``
+    (:func:`points_in_view`). Keyframes with fewer points than that are left to matching,
+    which names what they lack (``few_matches``)."""
+    enough = min(len(_valid(a.P_lev)), len(_valid(b.P_lev))) >= config.min_inliers
+    return enough and points_in_view(a, b, T_base_cam, prior, config) < config.min_inliers
+
+
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,
                    seed: int = 0, prior: tuple[np.ndarray, np.ndarray] | None = None) -> ClosureCheck:
     """Geometric verification of a loop-closure candidate: the planar motion from ``a`` to
@@ -531,8 +582,11 @@ def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: Pla
     optionally the graph's prediction of ``T_base_a_base_b`` and its (3, 3) covariance (the
     joint marginal of the two poses); a closure beyond ``prior_gate_chi2`` of it is
     rejected (``prior_mismatch``): what geometry cannot tell -- a place that looks the same
-    and is elsewhere -- the trajectory can.
+    and is elsewhere -- the trajectory can. A pair whose points the prior cannot put in
+    view of each other is rejected before matching (``out_of_view``, :func:`points_in_view`).
     """
+    if prior is not None and _out_of_view(a, b, T_base_cam, prior, config):
+        return ClosureCheck(False, OUT_OF_VIEW, None, None)
     try:
         return _verify(a, b, T_base_cam, config, seed, prior)
     except np.linalg.LinAlgError:  # degenerate inliers (e.g. all at one point): no motion

@@ -166,7 +166,8 @@ def test_look_alike_that_passed_the_old_prior_is_rejected():
     texture period, as on tuning log straight_s127): a keyframe 10.24 m on verifies as the
     first one's place. With every step's sigma scaled by 3 (the prior before) the pair is
     accepted -- a closure 10.24 m off the ground truth; with guessed steps at their own
-    sigmas it is ``prior_mismatch``. A true revisit still passes the new prior."""
+    sigmas it is rejected before matching (``out_of_view``: that prior puts the first
+    keyframe's points behind the second). A true revisit still passes the new prior."""
     synth = pytest.importorskip("planar_vo.sim.synth")
     from planar_vo.sim.synth_scene import build_scene
     cfg = synth.SynthConfig(layout="straight", seed=31, n_frames=400).at_resolution(W, H)
@@ -180,7 +181,8 @@ def test_look_alike_that_passed_the_old_prior_is_rejected():
     assert old.accepted, old.reason
     assert math.hypot(*(old.pose - truth)[:2]) > 9.0     # a wrong closure, against the ground truth
     new = verify_closure(a, b, mount.T_base_cam, PlaceConfig(), prior=_straight_drive_prior(new_cfg, 10.24, 1))
-    assert not new.accepted and new.reason == "prior_mismatch", new.reason
+    # the new prior puts the first keyframe's points 10 m behind the second: not even matched
+    assert not new.accepted and new.reason == "out_of_view", new.reason
     # a true revisit 3 m on (sideways and turned) against the same kind of prior
     c = _keyframe(renderer, K, mount, (4.5, -0.2, math.radians(10)), 2)
     d = _keyframe(renderer, K, mount, (4.55, 0.15, math.radians(-5)), 3)

@@ -126,8 +126,37 @@ def test_prior_from_the_graph_gates_the_closure(corridor):
     cov = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
     near = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [0.03, -0.02, 0.005], cov))
     assert near.accepted
+    off = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [0.5, 0.0, 0.0], cov))
+    assert not off.accepted and off.reason == "prior_mismatch" and off.pose is None
+    # a texture period away, the prior puts a's points behind b: not even matched
     far = verify_closure(a, b, corridor.mount.T_base_cam, CONFIG, prior=(gt + [10.24, 0.0, 0.0], cov))
-    assert not far.accepted and far.reason == "prior_mismatch" and far.pose is None
+    assert not far.accepted and far.reason == "out_of_view" and far.pose is None and far.matches == 0
+
+
+def test_points_in_view_under_the_prior(corridor):
+    """The points of ``a`` that the prior can put in ``b``'s view: most of them for the true
+    revisits (and each is still accepted with that prior); none when the prior turns b to
+    face the other way or puts it beyond a's points, where verification is skipped."""
+    from planar_vo.frontend.places import points_in_view
+
+    cov = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
+    T = corridor.mount.T_base_cam
+    for x, p in REVISITS.items():
+        a, b = corridor.first[x], corridor.cached(p)
+        gt = geometry.se2_between(a.gt, b.gt)
+        n_a = int(np.isfinite(a.P_lev).all(1).sum())
+        seen = points_in_view(a, b, T, (gt, cov), CONFIG)
+        assert seen >= 0.5 * n_a, (x, seen, n_a)
+        assert verify_closure(a, b, T, CONFIG, prior=(gt, cov)).accepted
+    a, b = corridor.first[3], corridor.cached(REVISITS[3])
+    gt = geometry.se2_between(a.gt, b.gt)
+    back = (geometry.se2_compose(gt, [0.0, 0.0, math.pi]), cov)  # b facing back down the corridor
+    assert points_in_view(a, b, T, back, CONFIG) < CONFIG.min_inliers
+    ahead = (gt + [12.0, 0.0, 0.0], cov)  # 12 m on: a's points (4.5 m range) lie behind b
+    assert points_in_view(a, b, T, ahead, CONFIG) == 0
+    # a vague prior (a lap's drift) keeps the pair in view: verification decides
+    vague = (gt + [0.3, 0.2, 0.0], np.diag([1.0, 1.0, math.radians(10.0) ** 2]))
+    assert points_in_view(a, b, T, vague, CONFIG) >= CONFIG.min_inliers
 
 
 def test_unrelated_places_are_rejected(corridor):
