@@ -40,7 +40,8 @@ from planar_vo.core.geometry import largest_sigma, se2_compose, se2_inverse, wra
 from planar_vo.core.steps import STATUS_BRIDGED, STATUS_PARTIAL
 from planar_vo.core.types import CameraIntrinsics
 from planar_vo.frontend.config import FrontendConfig, PlaceConfig
-from planar_vo.frontend.places import Keyframe, PlaceIndex, make_keyframe, prior_distance, verify_closure
+from planar_vo.frontend.places import (OUT_OF_VIEW, Keyframe, PlaceIndex, make_keyframe, prior_distance,
+                                      verify_closure)
 
 
 def compose_covariance(cov_ab: np.ndarray, T_bc, cov_bc: np.ndarray) -> np.ndarray:
@@ -440,7 +441,8 @@ class LoopCloser:
                 "keyframe_frames": list(self.keyframe_frames),
                 "candidates": len(self.candidates),
                 "by_source": _count(c.source for c in self.candidates),
-                "verified": len(self.candidates), "accepted": verdicts.get("accepted", 0),
+                # the candidates matched and checked: not those the prior put out of view
+                "verified": sum(c.reason != OUT_OF_VIEW for c in self.candidates), "accepted": verdicts.get("accepted", 0),
                 "rejected": verdicts.get("rejected", 0), "removed_by_graph": verdicts.get("removed", 0),
                 "not_accepted_by_reason": reasons,
                 "time_s": {k: round(v, 4) for k, v in self.time_s.items()},

@@ -75,6 +75,10 @@ def test_outputs_show_the_closures(ring):
     # a keyframe that closed a loop is not kept (memory grows with the area, not the laps)
     lc = rep["loop_closure"]
     assert lc["keyframes_kept"] == lc["keyframes"] - len({c["b"] for c in kept})
+    # candidates the prior put out of view are counted as such, not as verified
+    unseen = lc["not_accepted_by_reason"].get("out_of_view", 0)
+    assert lc["verified"] == lc["candidates"] - unseen
+    assert all(c["matches"] == 0 for c in lc["list"] if c["reason"] == "out_of_view")
 
 
 def test_batch_and_online_agree(ring):
