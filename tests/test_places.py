@@ -216,6 +216,20 @@ def test_config_is_validated():
         PlaceConfig(min_spread_m=0.0)
 
 
+def test_bag_of_words_is_the_sorted_unique_word_ids():
+    """What np.unique of the keys gives: sorted, no repeats, int32; empty for no descriptors."""
+    from planar_vo.frontend.places import _hash_bits, bag_of_words
+    rng = np.random.default_rng(5)
+    d = rng.integers(0, 256, (900, 32), dtype=np.uint8)
+    d[450:] = d[:450]  # repeated descriptors give repeated keys
+    sel, weights = _hash_bits(CONFIG.hash_tables, CONFIG.hash_bits, CONFIG.hash_seed)
+    keys = np.unpackbits(d, axis=1)[:, sel].astype(np.int64) @ weights
+    expect = np.unique(keys + (np.arange(CONFIG.hash_tables, dtype=np.int64) << CONFIG.hash_bits)[None, :])
+    w = bag_of_words(d, CONFIG)
+    assert w.dtype == np.int32 and np.array_equal(w, expect) and len(w) < 900 * CONFIG.hash_tables
+    assert len(bag_of_words(np.zeros((0, 32), np.uint8), CONFIG)) == 0
+
+
 def test_place_index_ranks_near_copies_first_across_merges():
     """Random descriptors, every fifth keyframe a near copy (a few bits flipped) of one
     added earlier: the copy's original is ranked first, also after the index's runs merged."""
