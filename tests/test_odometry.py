@@ -368,3 +368,23 @@ def test_a_robot_braking_at_its_acceleration_limit_is_not_a_velocity_jump():
     assert not odo._velocity_jump(np.array([0.0, 0.0, -0.047]), cov, info)
     assert info.rejected == []
     assert odo._velocity_jump(np.array([0.0, 0.0, -0.005]), cov, info)
+
+
+def test_window_velocity_weighs_the_measured_steps_by_their_variances():
+    """The constant-velocity guess: steps measured alike give their plain mean at sigma /
+    sqrt(n); a coarse step (sigma 26 mm against 5 mm, as a low-texture 2-point step) barely
+    moves it, where the plain mean would move by a fifth of its error."""
+    from planar_vo.frontend.odometry import window_velocity
+
+    rng = np.random.default_rng(11)
+    true = np.array([0.002, 0.0, 0.0116])
+    alike = [(true + rng.normal(0.0, 0.005, 3) * [1, 0, 1], 0.005 ** 2) for _ in range(4)]
+    t, s = window_velocity(alike)
+    np.testing.assert_allclose(t, np.mean([r for r, _ in alike], axis=0), atol=1e-15)
+    assert s == pytest.approx(0.005 / 2.0)
+    coarse = alike + [(true + [0.0, 0.0, 0.040], 0.026 ** 2)]
+    t, s = window_velocity(coarse)
+    plain = np.mean([r for r, _ in coarse], axis=0)
+    assert abs(plain[2] - true[2]) > 0.006                      # the plain mean: 8 mm + noise off
+    assert abs(t[2] - np.mean([r for r, _ in alike], axis=0)[2]) < 0.0015  # weighted: < 1.5 mm moved
+    assert s < 0.005 / 2.0
