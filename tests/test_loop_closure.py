@@ -107,3 +107,18 @@ def test_look_alike_corridors_close_nothing(tmp_path_factory):
     kept = [c for c in lc["list"] if c["verdict"] == "accepted"]
     errors = closure_errors(kept, _gt_base(log, out, cfg))
     assert all(e["error_m"] <= 0.05 and e["error_deg"] <= 0.5 for e in errors)  # no wrong closure
+
+
+def test_summary_line_counts_the_pairs_out_of_view_apart(ring, capsys):
+    """The run's summary line splits the rejected candidates into those the prior put out
+    of view (never matched) and those verification rejected."""
+    from types import SimpleNamespace
+
+    from planar_vo.commands.run import print_summary
+
+    log, cfg, out, rep, _ = ring
+    print_summary(SimpleNamespace(report=rep, out_dir=out / "batch", files={}, partial=False, stop_reason=None))
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("loop closure:"))
+    lc = rep["loop_closure"]
+    unseen = lc["not_accepted_by_reason"].get("out_of_view", 0)
+    assert f"({unseen} out of view, {lc['rejected'] - unseen} rejected by verification," in line

@@ -96,8 +96,10 @@ def print_summary(result) -> None:
     print(f"speed: {r['fps']} frames/s end to end")
     lc = r.get("loop_closure") or {}
     if lc.get("keyframes") is not None:
+        unseen = (lc.get("not_accepted_by_reason") or {}).get("out_of_view", 0)
         print(f"loop closure: {lc['keyframes']} keyframes, {lc['candidates']} candidates, {lc['accepted']} closures "
-              f"kept ({lc['rejected']} rejected by verification, {lc['removed_by_graph']} removed by the graph)")
+              f"kept ({unseen} out of view, {lc['rejected'] - unseen} rejected by verification, "
+              f"{lc['removed_by_graph']} removed by the graph)")
     walls = (r.get("backend") or {}).get("walls") or {}
     if walls.get("factors"):
         print(f"walls: {walls['landmarks']} wall landmarks, {walls['factors']} offset factors "
