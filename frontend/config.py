@@ -351,7 +351,8 @@ class OdometryConfig:
     bridge_max_speed: float = 1.0
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
-    velocity_window: int = 5         # frames whose measured steps are averaged (by their variances) into the constant-velocity guess
+    #: frames whose measured steps are averaged (by their variances) into the constant-velocity guess
+    velocity_window: int = 5
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised

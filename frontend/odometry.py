@@ -417,7 +417,8 @@ class PlanarOdometry:
         # a partial step's yaw measured from the keyframe: (frames since K, levelled yaw K -> here, variance)
         self._kf_yaw: tuple[int, float, float] | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
-        # the last velocity_window measured steps, (frame self._n, levelled t (3,)): the guess
+        # the last velocity_window measured steps, (frame self._n, levelled t (3,), its
+        # variance m^2): the guess
         # and its rate of change (_remember_translation, _bridge_sigmas)
         self._history: list[tuple[int, np.ndarray, float]] = []
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
@@ -1429,9 +1430,10 @@ class PlanarOdometry:
     def _remember_translation(self, t: np.ndarray, var: float) -> list[tuple[np.ndarray, float]]:
         """Keep the measured levelled ``t`` (3,) of this frame with its ``var`` (m^2); returns
         the ``(t, var)`` the constant-velocity guess of the next partial or bridged steps
-        averages (:func:`window_velocity`): those measured in the last ``velocity_window`` frames. A single step's error (1-3 mm on low texture) is
-        copied into every guessed step that follows: 68 partial steps in a row on a tuning
-        log (straight_s118) turned one step's error into 3 % of their path. Measurements
+        averages (:func:`window_velocity`): those measured in the last ``velocity_window``
+        frames. A single step's error (1-3 mm on low texture) is copied into every guessed
+        step that follows: 68 partial steps in a row on a tuning log (straight_s118) turned
+        one step's error into 3 % of their path. Measurements
         older than the window describe an older velocity: where partial steps alternated with
         measured ones the last five measured spanned 10-15 frames, and a robot braking to
         a stop in 1 s was guessed 6-18 mm a step too fast (a low-texture tuning log's last

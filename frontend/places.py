@@ -281,7 +281,8 @@ class ClosureCheck:
     ``pose``: (3,) float64 SE(2) ``T_base_a_base_b`` ``(x, y, theta)`` (base_link, REP 103)
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
-    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``, ``out_of_view``). ``spread_m``: std of the
+    ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``,
+    ``out_of_view``). ``spread_m``: std of the
     inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
     ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
     or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
@@ -545,7 +546,12 @@ def points_in_view(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, prior, conf
     need not run (descriptor matching and RANSAC: 10-50 ms a pair), which is most of the
     appearance candidates of a run without a revisit: keyframes facing another corridor.
     """
-    fa, fb = _valid(a.P_lev), _valid(b.P_lev)
+    return _in_view(a, b, _valid(a.P_lev), _valid(b.P_lev), T_base_cam, prior, config)
+
+
+def _in_view(a: Keyframe, b: Keyframe, fa: np.ndarray, fb: np.ndarray, T_base_cam: np.ndarray, prior,
+             config: PlaceConfig) -> int:
+    """:func:`points_in_view` over the points ``fa`` of ``a`` and ``fb`` of ``b`` with depth."""
     if len(fa) == 0 or len(fb) == 0:
         return 0
     pose, cov = np.asarray(prior[0], float), np.asarray(prior[1], float)
@@ -571,8 +577,9 @@ def _out_of_view(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, prior, config
     """Fewer than ``min_inliers`` of ``a``'s points can be in ``b``'s view under ``prior``
     (:func:`points_in_view`). Keyframes with fewer points than that are left to matching,
     which names what they lack (``few_matches``)."""
-    enough = min(len(_valid(a.P_lev)), len(_valid(b.P_lev))) >= config.min_inliers
-    return enough and points_in_view(a, b, T_base_cam, prior, config) < config.min_inliers
+    fa, fb = _valid(a.P_lev), _valid(b.P_lev)
+    enough = min(len(fa), len(fb)) >= config.min_inliers
+    return enough and _in_view(a, b, fa, fb, T_base_cam, prior, config) < config.min_inliers
 
 
 def verify_closure(a: Keyframe, b: Keyframe, T_base_cam: np.ndarray, config: PlaceConfig,

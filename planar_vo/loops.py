@@ -442,7 +442,8 @@ class LoopCloser:
                 "candidates": len(self.candidates),
                 "by_source": _count(c.source for c in self.candidates),
                 # the candidates matched and checked: not those the prior put out of view
-                "verified": sum(c.reason != OUT_OF_VIEW for c in self.candidates), "accepted": verdicts.get("accepted", 0),
+                "verified": sum(c.reason != OUT_OF_VIEW for c in self.candidates),
+                "accepted": verdicts.get("accepted", 0),
                 "rejected": verdicts.get("rejected", 0), "removed_by_graph": verdicts.get("removed", 0),
                 "not_accepted_by_reason": reasons,
                 "time_s": {k: round(v, 4) for k, v in self.time_s.items()},
