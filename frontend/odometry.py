@@ -418,8 +418,7 @@ class PlanarOdometry:
         self._kf_yaw: tuple[int, float, float] | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
         # the last velocity_window measured steps, (frame self._n, levelled t (3,), its
-        # variance m^2): the guess
-        # and its rate of change (_remember_translation, _bridge_sigmas)
+        # variance m^2): the guess and its rate of change (_remember_translation, _bridge_sigmas)
         self._history: list[tuple[int, np.ndarray, float]] = []
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
         self._n = 0

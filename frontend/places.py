@@ -282,8 +282,8 @@ class ClosureCheck:
     or None; ``information``: (3, 3) float64 in gtsam.Pose2 tangent order ``[x, y, theta]``
     or None. ``reason``: ``"accepted"`` or why not (``few_matches``, ``no_solution``,
     ``few_inliers``, ``poor_spread``, ``manhattan_mismatch``, ``prior_mismatch``,
-    ``out_of_view``). ``spread_m``: std of the
-    inliers' horizontal positions in their narrowest direction (robust width, :func:`_spread`).
+    ``out_of_view``). ``spread_m``: std of the inliers' horizontal positions in their
+    narrowest direction (robust width, :func:`_spread`).
     ``yaw_source``: ``"manhattan"`` (direction-plus-point), ``"fused"`` (Manhattan and points)
     or ``"2pt"`` (the points alone). ``covariance``: (3, 3) base_link, the inverse of
     ``information``; ``lev_motion``: the levelled motion; ``inlier_pairs``: the inliers'

@@ -81,9 +81,9 @@ def test_partial_steps_measure_the_distance_along_a_textureless_corridor(boxes):
     measured; their errors sum to within 1 % of their path and to under a third of what
     the constant-velocity guess alone collects (depth_align off: up to 26 mm a step).
     Measured: +2.5 mm against -21.5 mm over 35 steps (0.5 m), the worst step the first
-    (+2.55 mm); forward errors over stated sigmas, RMS 0.57. With the residuals normalised at the candidate's predicted depth (before
-    the twenty-fifth stop) the sum was -6.1 mm, 1.2 % of the path, and the worst step
-    2.12 mm."""
+    (+2.55 mm); forward errors over stated sigmas, RMS 0.57. With the residuals normalised
+    at the candidate's predicted depth (before the twenty-fifth stop) the sum was -6.1 mm,
+    1.2 % of the path, and the worst step 2.12 mm."""
     K, mount, frames = boxes
     summed = {}
     for config in (ON, FrontendConfig(odometry=OdometryConfig(depth_align=False))):
