@@ -348,7 +348,8 @@ def test_cli_writes_a_log_and_names_bad_flags(tmp_path, capsys):
     assert rc == 0 and out.exists() and (tmp_path / "c.gt.tum").exists()
     assert str(out) in capsys.readouterr().out
     for flags, name in ((["--texture", "shiny"], "--texture"), (["--size", "big"], "--size"),
-                        (["--frames", "5"], "--frames"), (["--profile", "ros1"], "--profile")):
+                        (["--frames", "5"], "--frames"), (["--profile", "ros1"], "--profile"),
+                        (["--speed-dips"], "--randomize")):
         rc = main(["synth", str(tmp_path / "d.mcap"), "--layout", "straight", *flags])
         assert rc == 2
         assert name in capsys.readouterr().err

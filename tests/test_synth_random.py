@@ -134,3 +134,67 @@ def test_step_errors_against_ground_truth(tmp_path):
     assert out["dpp"]["nees_sum"] > 5.0 * 1.5
     pooled = pool_normalised([{"normalised": out}, {"normalised": out}])
     assert pooled["dpp"]["n"] == 2 and pooled["dpp"]["nees"] == pytest.approx(out["dpp"]["nees_sum"])
+
+
+# ------------------------------------------------------------------ speed dips
+def _speeds(c):
+    stamps, poses = synth_trajectory(c)
+    return stamps, poses, np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1) / np.diff(stamps)
+
+
+def test_a_speed_dip_slows_the_base_on_the_same_path():
+    """A dip of depth 1 (a momentary stop) 3 s wide at mid-run: the base drives the same path
+    in the same time (same first and last pose), is at the dip's centre at ~zero speed, and
+    cruises the rest at the speed that makes up for the time lost (1 / k, k = 1 - 1.5 / T)."""
+    plain = SynthConfig(layout="straight", n_frames=201, rate_hz=10.0, speed=0.5, weave=0.0)
+    dip = SynthConfig(layout="straight", n_frames=201, rate_hz=10.0, speed=0.5, weave=0.0,
+                      speed_dips=((0.5, 3.0, 1.0),))
+    _, p0, v0 = _speeds(plain)
+    stamps, p1, v1 = _speeds(dip)
+    np.testing.assert_allclose(p1[[0, -1]], p0[[0, -1]], atol=1e-9)
+    mid = np.abs(0.5 * (stamps[1:] + stamps[:-1]) - stamps[0] - 10.0) < 0.06
+    assert v1[mid].max() < 0.01                       # stopped at the centre
+    k = 1.0 - 1.5 / 20.0                              # half the width, depth 1, over 20 s
+    assert v1[50:70].mean() == pytest.approx(0.5 / k, rel=1e-3)  # cruising outside the dip
+    assert v0[50:70].mean() == pytest.approx(0.5, rel=1e-3)
+    assert np.all(np.diff(p1[:, 0]) >= -1e-9)       # never backwards
+    # a dip reaching back over the start still starts and ends the run where the plain one does
+    early = SynthConfig(layout="straight", n_frames=201, rate_hz=10.0, speed=0.5, weave=0.0,
+                        speed_dips=((0.02, 3.0, 0.8),))
+    np.testing.assert_allclose(_speeds(early)[1][[0, -1]], p0[[0, -1]], atol=1e-9)
+
+
+def test_speed_dips_are_validated():
+    from planar_vo.core.errors import ConfigError
+    with pytest.raises(ConfigError, match="speed_dips"):
+        SynthConfig(speed_dips=((1.2, 2.0, 0.5),))
+    with pytest.raises(ConfigError, match="speed_dips"):
+        SynthConfig(speed_dips=((0.5, 2.0, 1.5),))
+    with pytest.raises(ConfigError, match="below a stop"):  # two full stops on top of each other
+        SynthConfig(n_frames=300, speed_dips=((0.5, 4.0, 1.0), (0.5, 4.0, 1.0)))
+
+
+def test_randomized_speed_dips_leave_every_other_draw_and_the_log_names_alone():
+    """``speed_dips=True`` adds the dips and changes nothing else of the seed's draw; without
+    them a config's log name is what the sweeps' caches were rendered under (a tuning log of
+    seed 3700). Every dip brakes within the cap and sits inside the cruise."""
+    from planar_vo.bench.sweep import log_name
+    assert log_name(randomized_config(3700, "hall")) == "hall_s3700_n300_4962a00a"
+    n_dips = []
+    for seed in range(20):
+        for layout in LAYOUTS:
+            a, b = randomized_config(seed, layout), randomized_config(seed, layout, speed_dips=True)
+            da, db = describe(a), describe(b)
+            assert db.pop("speed_dips") and da == db and a.speed_dips == ()
+            T = b.duration
+            for centre, width, depth in b.speed_dips:
+                assert b.ramp_s + 0.5 * width - 1e-9 <= centre * T <= T - b.ramp_s - 0.5 * width + 1e-9
+                assert math.pi * depth * b.speed / width <= RANGES["speed_dip_max_decel"] + 1e-9
+                assert RANGES["speed_dip_depth"][0] <= depth <= RANGES["speed_dip_depth"][1]
+            n_dips.append(len(b.speed_dips))
+    assert min(n_dips) >= 1 and max(n_dips) >= 2
+    # the slowest moment of a drawn log is the deepest dip's
+    c = randomized_config(5, "straight", speed_dips=True)
+    _, _, v = _speeds(c)
+    deepest = max(d for _, _, d in c.speed_dips)
+    assert v[15:-15].min() < (1.0 - deepest) * c.speed + 0.05

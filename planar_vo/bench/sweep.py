@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="runs/sweep", help="run folders, sweep.json, sweep.md (default runs/sweep)")
     parser.add_argument("--workers", type=int, default=2, help="logs rendered and run in parallel (default 2)")
     parser.add_argument("--config", default=None, help="run configuration YAML (as planar-vo run --config)")
+    parser.add_argument("--speed-dips", action="store_true",
+                        help="the base also slows down within its cruise, down to a momentary stop (other logs "
+                             "than without: every other draw of a seed stays the same)")
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -75,14 +78,15 @@ def log_name(cfg) -> str:
 
 
 # ------------------------------------------------------------------ one log
-def run_one(seed: int, layout: str, min_frames: int | None, cache: str, out: str, config_path: str | None) -> dict:
+def run_one(seed: int, layout: str, min_frames: int | None, cache: str, out: str, config_path: str | None,
+            speed_dips: bool = False) -> dict:
     """Render (or reuse) one randomized log, run it, evaluate it; a dict for the summary.
     Runs in a worker process; never raises (a failure is reported with its reason)."""
     from planar_vo.sim.synth_random import describe, randomized_config
 
     rec: dict = {"seed": seed, "layout": layout}
     try:
-        cfg = randomized_config(seed, layout, n_frames=min_frames)
+        cfg = randomized_config(seed, layout, n_frames=min_frames, speed_dips=speed_dips)
         name = log_name(cfg)
         rec.update(name=name, scene=describe(cfg))
         log = Path(cache) / f"{name}.mcap"
@@ -298,13 +302,14 @@ def main(args: argparse.Namespace) -> int:
     Path(args.cache).mkdir(parents=True, exist_ok=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
     jobs = plan(seeds, layouts, args.long)
-    print(f"planar-vo bench sweep: {len(jobs)} logs (seeds {seeds[0]}-{seeds[-1]}, {', '.join(layouts)}), "
-          f"{args.workers} workers, cache {args.cache}", flush=True)
+    print(f"planar-vo bench sweep: {len(jobs)} logs (seeds {seeds[0]}-{seeds[-1]}, {', '.join(layouts)}"
+          f"{', speed dips' if args.speed_dips else ''}), {args.workers} workers, cache {args.cache}", flush=True)
     records: list[dict] = []
     t0 = time.perf_counter()
     try:
         with ProcessPoolExecutor(args.workers) as pool:
-            futs = [pool.submit(run_one, s, lay, n, args.cache, args.out, args.config) for s, lay, n in jobs]
+            futs = [pool.submit(run_one, s, lay, n, args.cache, args.out, args.config, args.speed_dips)
+                    for s, lay, n in jobs]
             for f in as_completed(futs):
                 r = f.result()
                 records.append(r)

@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="draw the scene, path wobble, mount, speed, rate, texture, lighting and sensor "
                              "effects from --seed (planar_vo.sim.synth_random.RANGES); --frames is then a "
                              "minimum, and the other scene flags are ignored")
+    parser.add_argument("--speed-dips", action="store_true",
+                        help="with --randomize: the base also slows down within its cruise (one dip and one more "
+                             "per 30 s on average, down to a momentary stop, braking at up to 0.6 m/s^2)")
     w = parser.add_argument_group("wheel odometry (a differential-drive error model driven by the true path)")
     w.add_argument("--wheel-odom", action="store_true",
                    help="add wheel odometry: nav_msgs/Odometry on /odom (Foxglove profile: PoseInFrame)")
@@ -137,12 +140,14 @@ def main(args: argparse.Namespace) -> int:
         raise InputError(f"--depth-encoding {args.depth_encoding!r}: use one of {', '.join(DEPTH_ENCODINGS)}")
     if args.sensor not in SENSOR_PRESETS:
         raise InputError(f"--sensor {args.sensor!r}: use one of {', '.join(SENSOR_PRESETS)}")
+    if args.speed_dips and not args.randomize:
+        raise InputError("--speed-dips draws the dips from --seed: use it with --randomize")
     width, height = _parse_size(args.size)
     try:
         if args.randomize:
             from planar_vo.sim.synth_random import describe, randomized_config
 
-            cfg = randomized_config(args.seed, args.layout, n_frames=args.frames or 300)
+            cfg = randomized_config(args.seed, args.layout, n_frames=args.frames or 300, speed_dips=args.speed_dips)
             print("randomized: " + ", ".join(f"{k}={v}" for k, v in describe(cfg).items()))
         else:
             cfg = SynthConfig(layout=args.layout, seed=args.seed, n_frames=_frames(args), rate_hz=args.rate,

@@ -113,6 +113,13 @@ class SynthConfig:
     #: further sideways weaves ``(amplitude m, wavelength m)`` superposed on the first, each
     #: with a seeded phase: short wavelengths turn the heading fast (a real robot's wobble)
     weave_components: tuple = ()
+    #: slow-downs within the cruise ``((centre, width_s, depth), ...)``: around ``centre`` (a
+    #: fraction of the run's duration) the speed dips by ``depth`` (a fraction of the cruise
+    #: speed; 1: the base stops for an instant) over ``width_s`` seconds, a raised cosine, as a
+    #: robot slows for a door or a person. The time lost is made up by cruising a little
+    #: faster elsewhere (:func:`_time_warp`), so the path, its length and the frames stay the
+    #: same. Empty: the trapezoidal profile alone.
+    speed_dips: tuple = ()
     start_stamp: float = 1_700_000_000.0
     #: laps of a closed layout (loop, building) the path drives; None: the layout's default
     laps: float | None = None
@@ -178,6 +185,13 @@ class SynthConfig:
             bad("weave", "must be within [0, corridor_width / 4]")
         if self.ramp_s < 0:
             bad("ramp_s", "must be >= 0")
+        if any(len(d) != 3 or not (0.0 < d[0] < 1.0 and d[1] > 0.0 and 0.0 <= d[2] <= 1.0) for d in self.speed_dips):
+            bad("speed_dips", "must be (centre, width_s, depth) triples with 0 < centre < 1, width_s > 0, "
+                "0 <= depth <= 1")
+        elif self.speed_dips and (_time_warp(self, np.array([self.duration]))[1] <= 0.0
+                                  or _dip_depth(self, np.linspace(0.0, self.duration, 4001)).max() > 1.0):
+            bad("speed_dips", "overlapping dips slow the base below a stop, or leave no time to drive the path; "
+                "make them shallower or narrower")
         if any(len(w) != 2 or not (0 <= w[0] <= 0.25 * self.corridor_width and w[1] > 0)
                for w in self.weave_components):
             bad("weave_components", "must be (amplitude, wavelength) pairs with 0 <= amplitude <= "
@@ -319,6 +333,36 @@ def _scene_for(cfg: SynthConfig) -> Scene:
                        box_density=cfg.box_density, branch_angle_deg=cfg.branch_angle_deg)
 
 
+def _dip_depth(cfg: SynthConfig, t: np.ndarray) -> np.ndarray:
+    """(M,) the fraction of the cruise speed ``cfg.speed_dips`` take away at times ``t`` (M,) s."""
+    out = np.zeros_like(np.asarray(t, dtype=np.float64))
+    for centre, width, depth in cfg.speed_dips:
+        y = np.clip(t - centre * cfg.duration, -0.5 * width, 0.5 * width)
+        out += depth * 0.5 * (1.0 + np.cos(2.0 * math.pi * y / width))
+    return out
+
+
+def _time_warp(cfg: SynthConfig, t: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(u (M,), k)``: the trapezoidal profile's time ``u`` at which the base, slowed by
+    ``cfg.speed_dips``, is where it is at time ``t`` (M,) s, and ``k``, the share of the
+    duration left to drive in. The speed is the profile's times ``(1 - sum_i d_i b_i(t)) / k``,
+    ``b_i`` the raised cosine of dip ``i`` (1 at its centre, 0 beyond half its width), so
+    ``u(0) = 0`` and ``u(T) = T``: the same path in the same time."""
+    T = cfg.duration
+
+    def lost(x: np.ndarray) -> np.ndarray:  # integral over [0, x] of sum_i d_i b_i
+        out = np.zeros_like(x)
+        for centre, width, depth in cfg.speed_dips:
+            h = 0.5 * width
+            for sign, z in ((1.0, x), (-1.0, np.zeros_like(x))):  # a dip may begin before t = 0
+                y = np.clip(z - centre * T, -h, h)
+                out += sign * depth * (0.5 * (y + h) + width / (4.0 * math.pi) * np.sin(2.0 * math.pi * y / width))
+        return out
+
+    k = 1.0 - float(lost(np.array([T]))[0]) / T if T > 0 else 1.0
+    return (t - lost(t)) / k if k > 0 else t, k
+
+
 def _trajectory(cfg: SynthConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(cfg.n_frames) / cfg.rate_hz
     return cfg.start_stamp + t, _poses_at(cfg, scene, t)
@@ -330,6 +374,8 @@ def _poses_at(cfg: SynthConfig, scene: Scene, t: np.ndarray) -> np.ndarray:
     T, r, v = cfg.duration, cfg._ramp, cfg.speed
     # trapezoidal speed: accelerate over r seconds, cruise, stop over the last r seconds
     t = np.clip(t, 0.0, T)
+    if cfg.speed_dips:
+        t = _time_warp(cfg, t)[0]
     if r > 0:
         s = np.where(t < r, 0.5 * v / r * t ** 2,
                      np.where(t <= T - r, 0.5 * v * r + v * (t - r), v * (T - r) - 0.5 * v / r * (T - t) ** 2))

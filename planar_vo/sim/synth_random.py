@@ -47,6 +47,13 @@ RANGES = {
     "readout_ms": (0.0, 15.0),
     "color_delay_ms": (0.0, 16.0),
     "flying_pixels": (0.0, 0.5),
+    # slow-downs within the cruise (``speed_dips=True`` only): one, and one more per this
+    # many seconds of cruise on average (Poisson), each taking away a share of the speed
+    # over a width, widened so that it brakes at most at the deceleration given
+    "speed_dip_every_s": 30.0,
+    "speed_dip_depth": (0.3, 1.0),       # share of the cruise speed; 1: a momentary stop
+    "speed_dip_width_s": (1.5, 5.0),
+    "speed_dip_max_decel": 0.6,          # m/s^2
 }
 
 #: Frames of a randomized log: at least this many, more when the path would be shorter
@@ -77,10 +84,12 @@ def _wobble(rng: np.random.Generator, speed: float) -> tuple:
 
 
 def randomized_config(seed: int, layout: str, *, n_frames: int | None = None,
-                      min_frames: int = MIN_FRAMES) -> SynthConfig:
+                      min_frames: int = MIN_FRAMES, speed_dips: bool = False) -> SynthConfig:
     """A :class:`SynthConfig` of ``layout`` with everything in :data:`RANGES` drawn from
     ``seed`` (deterministic). ``n_frames``: at least this many frames (default
-    ``min_frames``); more when the drawn speed and rate would not drive the layout."""
+    ``min_frames``); more when the drawn speed and rate would not drive the layout.
+    ``speed_dips``: the base also slows down within the cruise (:func:`_speed_dips`), drawn
+    from a generator of their own, so every other draw of the seed stays the same."""
     rng = np.random.default_rng([int(seed), 7919, sum(map(ord, layout))])
     width = _u(rng, "corridor_width")
     speed = _u(rng, "speed")
@@ -104,7 +113,31 @@ def randomized_config(seed: int, layout: str, *, n_frames: int | None = None,
         delay = min(_u(rng, "color_delay_ms"), 0.5 * (period_ms - exposure - readout))
         fields.update(exposure_ms=exposure, readout_ms=readout, color_delay_ms=delay, auto_exposure=True,
                       flicker=0.02, flying_pixels=_u(rng, "flying_pixels"))
-    return SynthConfig(**fields, n_frames=_frames_needed(fields, max(n_frames or 0, min_frames)))
+    n = _frames_needed(fields, max(n_frames or 0, min_frames))
+    if speed_dips:
+        fields["speed_dips"] = _speed_dips(np.random.default_rng([int(seed), 7919, sum(map(ord, layout)), 31]),
+                                           (n - 1) / rate, speed, SynthConfig.__dataclass_fields__["ramp_s"].default)
+    return SynthConfig(**fields, n_frames=n)
+
+
+def _speed_dips(rng: np.random.Generator, duration: float, speed: float, ramp: float) -> tuple:
+    """``((centre, width_s, depth), ...)`` (:attr:`SynthConfig.speed_dips`) for a run of
+    ``duration`` s cruising at ``speed`` m/s between ``ramp`` s ramps: one dip and on average
+    one more per ``speed_dip_every_s`` of cruise, none overlapping another or a ramp, each
+    wide enough to brake at most at ``speed_dip_max_decel`` (a raised cosine of depth ``d``
+    and width ``w`` brakes at up to ``pi d v / w``)."""
+    cruise = duration - 2.0 * ramp
+    out: list[tuple[float, float, float]] = []
+    for _ in range(1 + int(rng.poisson(max(cruise, 0.0) / RANGES["speed_dip_every_s"]))):
+        depth = _u(rng, "speed_dip_depth")
+        width = max(_u(rng, "speed_dip_width_s"), math.pi * depth * speed / RANGES["speed_dip_max_decel"])
+        lo, hi = ramp + 0.5 * width, duration - ramp - 0.5 * width
+        if hi <= lo:
+            continue
+        c = float(rng.uniform(lo, hi))
+        if all(abs(c - o[0] * duration) >= 0.5 * (width + o[1]) for o in out):
+            out.append((c / duration, width, depth))
+    return tuple(sorted(out))
 
 
 def _frames_needed(fields: dict, n_frames: int) -> int:
@@ -133,6 +166,8 @@ def describe(cfg: SynthConfig) -> dict:
             "branch_angle_deg", "depth_incidence", "edge_dropout", "dropout_rate", "image_noise",
             "vignetting", "light_gain", "exposure_ms", "readout_ms", "color_delay_ms", "auto_exposure",
             "flying_pixels"]
+    if cfg.speed_dips:  # only when drawn: the logs rendered before keep their names
+        keys.append("speed_dips")
     out = {}
     for k in keys:
         v = getattr(cfg, k)
