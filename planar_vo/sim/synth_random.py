@@ -123,7 +123,8 @@ def randomized_config(seed: int, layout: str, *, n_frames: int | None = None,
 def _speed_dips(rng: np.random.Generator, duration: float, speed: float, ramp: float) -> tuple:
     """``((centre, width_s, depth), ...)`` (:attr:`SynthConfig.speed_dips`) for a run of
     ``duration`` s cruising at ``speed`` m/s between ``ramp`` s ramps: one dip and on average
-    one more per ``speed_dip_every_s`` of cruise, none overlapping another or a ramp, each
+    one more per ``speed_dip_every_s`` of cruise, none overlapping another or a ramp (a draw
+    that would is dropped, so a short cruise may keep fewer), each
     wide enough to brake at most at ``speed_dip_max_decel`` (a raised cosine of depth ``d``
     and width ``w`` brakes at up to ``pi d v / w``)."""
     cruise = duration - 2.0 * ramp
