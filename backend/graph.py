@@ -489,7 +489,8 @@ class _GraphBuilder:
         Each prior waits for the ``2 motion_prior_window`` frames after it, whose steps
         its acceleration is fitted to (:meth:`_prior_accel`), and for its gap to end, or
         for the solve (:meth:`flush`)."""
-        weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL))
+        weak = (k > 0 and odometry is None and result.step.status in (STATUS_BRIDGED, STATUS_PARTIAL)
+                and not result.step.translation_measured)
         self._mp_stamps.append(float(result.stamp))
         self._mp_weak.append(weak)
         # every step's velocity and stated noise: a guessed one's noise keeps it out of the fit

@@ -107,7 +107,9 @@ class Step:
     motion prior of its own puts that prior in its place, not on top of it.
     ``guess_copies``: for such a step, how many steps in a row (this one included) have
     copied the guessed velocity since the translation was last measured (their guesses err
-    alike); 0 for a measured step.
+    alike); 0 for a measured step. ``translation_measured``: a partial step whose whole
+    translation was measured, not guessed (resected against far corners,
+    frontend/farcorners.py): a back-end's motion prior treats it as a measured step.
     """
 
     pose: np.ndarray
@@ -118,6 +120,7 @@ class Step:
     keyframe_yaw: KeyframeYaw | None = None
     guess_information: np.ndarray | None = None
     guess_copies: int = 0
+    translation_measured: bool = False
 
 
 @dataclass
@@ -152,6 +155,9 @@ class FrameDiagnostics:
     #: yaw so found and the frame-to-frame one (deg), their disagreement in sigmas
     keyframe_yaw: dict | None = None
     depth_yaw: dict | None = None  # a step no wall or corner turned: its yaw from the depth images (no yaw_deg: none found)
+    #: a partial step resected against far corners (frontend/farcorners.py): corners used,
+    #: the levelled translation (t_x, t_z) and its sigmas (m)
+    far: dict | None = None
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
     #: the keyframe the step was measured against: frames since it, its corners still
     #: tracked, whether the step was re-measured against it (frontend/keyframe.py)

@@ -294,6 +294,11 @@ class OdometryConfig:
     #: sweep_tuning_3700-3707_session18*.txt; 0.3: worst 1.60), also covers errors that grow
     #: with the motion's length and are not modelled yet. 0: off.
     keyframe_track_px: float = 0.5
+    #: Corners beyond the depth range are triangulated from the measured steps, and a step
+    #: that no estimator measured (partial, bridged) is resected against them
+    #: (frontend/farcorners.py): in an open hall most corners are out of range, and where the
+    #: base stopped and drove on among such steps the constant-velocity guess held the stop.
+    far_corners: bool = True
     #: A partial step's translation along the direction its walls left to the guess (walls
     #: of one direction, with or without a few 3-D matches) is measured by aligning the two
     #: frames' depth images along it (box sides, door frames, end walls;

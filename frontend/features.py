@@ -36,13 +36,15 @@ class FeatureSet:
     ``px``: (N, 2) float32 pixel positions (as measured, distorted). ``xy``: (N, 2) float64
     undistorted normalised camera coordinates. ``P_cam``: (N, 3) float64 camera-frame points
     (metres), NaN rows where the depth is missing or on an edge. ``desc``: (N, 32) uint8 ORB
-    descriptors or None (klt).
+    descriptors or None (klt). ``unread``: (N,) bool, no depth reading around the corner at
+    all (:func:`unread`: beyond the range), or None.
     """
 
     px: np.ndarray
     xy: np.ndarray
     P_cam: np.ndarray
     desc: np.ndarray | None = None
+    unread: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.px)
@@ -96,6 +98,22 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     out[good, 1] = xy[good, 1] * z[good]
     out[good, 2] = z[good]
     return out
+
+
+def unread(px: np.ndarray, depth: np.ndarray, config: FeatureConfig,
+           depth_range: tuple[float, float] = DEFAULT_DEPTH_RANGE) -> np.ndarray:
+    """(N,) bool: corners ``px`` (N, 2) whose depth window (:func:`lift`'s) holds no reading
+    within ``depth_range`` -- beyond the sensor's range, not on a depth edge (where some
+    readings are there and disagree). Far corners (frontend/farcorners.py) are these."""
+    if len(px) == 0:
+        return np.zeros(0, bool)
+    h, w = depth.shape
+    r = config.depth_window
+    cols = np.clip(np.rint(px[:, 0]).astype(np.int64), r, w - 1 - r)
+    rows = np.clip(np.rint(px[:, 1]).astype(np.int64), r, h - 1 - r)
+    off = np.arange(-r, r + 1)
+    win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
+    return ~((win >= depth_range[0]) & (win <= depth_range[1])).reshape(len(px), -1).any(1)
 
 
 def straddles_depth_jump(px: np.ndarray, depth: np.ndarray, half: int, max_rel: float,
@@ -409,4 +427,4 @@ class FeatureTracker:
             # (only corners that have a depth to lose are tested: a third of the test's cost)
             has = np.flatnonzero(np.isfinite(P[:, 2]))
             P[has[straddles_depth_jump(px[has], depth, c.klt_window // 2, c.occlusion_rel, self.depth_range)]] = np.nan
-        return FeatureSet(px=px, xy=xy, P_cam=P, desc=desc)
+        return FeatureSet(px=px, xy=xy, P_cam=P, desc=desc, unread=unread(px, depth, c, self.depth_range))

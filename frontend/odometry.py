@@ -44,6 +44,7 @@ from planar_vo.core.errors import InputError
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.depthalign import (DepthAlignOptions, align_along, align_yaw, coarse_yaw_along, informative,
                                            informative_yaw, sample_points)
+from planar_vo.frontend.farcorners import FarCorners, FarOptions
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
@@ -410,6 +411,11 @@ class PlanarOdometry:
                                               lateral_floor_m=o.lateral_floor_m)
         self._prev: _Prev | None = None
         self._keyframes = KeyframeTracker(o.keyframe_min_fraction, o.keyframe_max_baseline_m, o.keyframe_max_yaw_deg)
+        # corners beyond the depth range, triangulated from the measured steps: a step no
+        # estimator measured is resected against them (frontend/farcorners.py)
+        self._far = FarCorners(FarOptions(
+            pixel_sigma=self._dpp_opt.pixel_sigma / intrinsics.fx, walk=o.keyframe_track_px / intrinsics.fx,
+            depth_sigma=(self._dpp_opt.depth_sigma_const, self._dpp_opt.depth_sigma_quad))) if o.far_corners else None
         # this frame's keyframe.commit arguments: the motion keyframe -> this frame the step
         # was taken from, or the step that was guessed, each with its covariance
         self._kf_measured: tuple | None = None
@@ -433,6 +439,7 @@ class PlanarOdometry:
         # frame index -> (features, matches, new corners, seconds) of track() calls made ahead
         self._tracked: dict[int, tuple] = {}
         self._depth: tuple[np.ndarray, np.ndarray] | None = None  # this frame's (depth, R_lev_cam)
+        self._unread: np.ndarray | None = None  # this frame's corners without a depth reading near
         # the depth noise model of the 1-point translation (DirPointOptions), not a second one
         self._align_opt = DepthAlignOptions(min_depth=c.min_depth, max_depth=min(c.max_depth, o.wall_max_offset_m),
                                             sigma_const=self._dpp_opt.depth_sigma_const,
@@ -477,6 +484,7 @@ class PlanarOdometry:
                                    f"{sorted(self._tracked)} but not for this one; call it for every frame, in order")
             tracked = self._track(color, depth)
         fs, matches, new_corners, t_track = tracked
+        self._unread = fs.unread  # corners with no depth reading around them (far corners)
         t_lev = clock()
         x_lev, P_lev = levelled_features(fs, R)
         t3 = clock()
@@ -515,10 +523,14 @@ class PlanarOdometry:
         which this frame then carries on or becomes (frontend/keyframe.py)."""
         step, lev_motion = None, (0.0, np.zeros(3), 0.0)
         tracked = self._keyframes.follow(matches, len(x_lev))
+        if self._far is not None:
+            self._far.follow(matches, len(x_lev), self._unread)
         self._kf_measured = self._kf_guessed = self._kf_yaw = None
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
                                               planes)
+        if self._far is not None:
+            self._far.commit(x_lev, P_lev, *self._far_step(step, lev_motion, info))
         age = self._keyframes.kf.age + 1 if self._keyframes.kf is not None else 0
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
                                          walls=step is not None and step.status == STATUS_DPP,
@@ -527,6 +539,21 @@ class PlanarOdometry:
             self._keyframes.kf.depth, self._keyframes.kf.R_lev_cam = self._depth
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
+
+    @staticmethod
+    def _far_step(step: Step | None, lev_motion, info) -> tuple:
+        """``(levelled step, (3, 3) cov)`` for :meth:`FarCorners.commit` of a step whose
+        translation was measured (direction-plus-point, 2-point, a partial step measured by
+        walls and depths), else ``(None, None)``. The covariance over ``(yaw, t_x, t_z)`` is
+        the step's base_link one with its translation made isotropic: it only scales the
+        triangulated depths' sigmas."""
+        measured = step is not None and (step.status in (STATUS_DPP, STATUS_2PT)
+                                         or (step.status == STATUS_PARTIAL and info.partial.get("measured")))
+        if not measured:
+            return None, None
+        cov_b = np.linalg.inv(step.information)
+        s2 = 0.5 * float(cov_b[0, 0] + cov_b[1, 1])
+        return (lev_motion[0], np.asarray(lev_motion[1], float)), np.diag([float(cov_b[2, 2]), s2, s2])
 
     def look_ahead(self, frames: Iterable[RGBDFrame]) -> None:
         """Show the odometry the first frames of the run before :meth:`process` of any:
@@ -669,7 +696,7 @@ class PlanarOdometry:
                     kf = ((yaw, np.asarray(t, float)), cov)
                 self._kf_measured = kf[:2] if kf is not None else None
                 return step
-        return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info, pts)
+        return self._partial_or_bridge(prev.walls, walls, mf_yaw, mount_se2, info, pts, x_lev)
 
     def _keyframe_step(self, kf, cov: np.ndarray):
         """``(step, link, cov_t)`` of a step taken as the difference of two motions from the
@@ -1063,7 +1090,7 @@ class PlanarOdometry:
                        key=lambda s: (s[0], -s[1]))
         return best
 
-    def _partial_or_bridge(self, walls1, walls2, mf_yaw, mount_se2, info, pts=None):
+    def _partial_or_bridge(self, walls1, walls2, mf_yaw, mount_se2, info, pts=None, x_lev=None):
         """No estimator gave a whole step. With a Manhattan yaw the step is partial: that yaw
         at its own sigma, and the translation along the normals of walls seen in both
         frames (``d2 - d1 = n2 . t``), from a few 3-D matches and the depth alignment
@@ -1073,14 +1100,11 @@ class PlanarOdometry:
         measured is partial at the guessed yaw and its sigma, and only a step of which
         nothing was measured is bridged."""
         c = self.config.odometry
-        if c.bridge == "constant_velocity" and self._last_motion is not None:
-            yaw, t = self._last_motion
-            how = "constant_velocity"
-        else:
-            yaw, t = 0.0, np.zeros(3)
-            how = "zero"
+        cv = c.bridge == "constant_velocity" and self._last_motion is not None
+        (yaw, t), how = (self._last_motion, "constant_velocity") if cv else ((0.0, np.zeros(3)), "zero")
         self._since_t += 1
         sb, s_theta = self._bridge_sigmas(how == "zero")
+        far, sb_t = self._far_resection(x_lev, yaw, t, mf_yaw, sb, info)
         turned = mf_yaw is not None  # by walls or corners
         if not turned:
             # no wall and no 2-point yaw: the depth images may still turn (pillars, boxes)
@@ -1090,11 +1114,11 @@ class PlanarOdometry:
             yaw, sigma_yaw, yaw_ff = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg)), mf_yaw[2]
         else:
             sigma_yaw, yaw_ff = s_theta, yaw
-        prior, prior_cov = np.array([t[0], t[2]]), sb
+        prior, prior_cov = np.array([t[0], t[2]]), sb_t
         if c.lateral_slip > 0:
-            prior, prior_cov = self._wheeled_prior(yaw, prior, sb, mount_se2)
+            prior, prior_cov = self._wheeled_prior(yaw, prior, sb_t, mount_se2)
         t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, yaw_ff, prior, prior_cov, pts, info,
-                                                        wide=not turned)
+                                                        wide=not turned, far=far)
         if mf_yaw is None and not any(counts.values()):
             return self._bridge(yaw, t, sb, s_theta, how, mount_se2, info)
         if mf_yaw is None:
@@ -1110,7 +1134,8 @@ class PlanarOdometry:
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         # the depth alignment measures along the guess's long axis; on a wheeled base the
         # other is the chord of the turn, so it measures the whole translation
-        measured = counts["walls"] + counts["dense"] >= 2 or (counts["dense"] > 0 and c.lateral_slip > 0)
+        measured = (counts["walls"] + counts["dense"] >= 2 or (counts["dense"] > 0 and c.lateral_slip > 0)
+                    or counts["far"] > 0)
         info.partial = {"prior": how, **counts, "measured": measured, "yaw": "measured" if mf_yaw else "guess"}
         self._kf_guessed = ((float(yaw), np.asarray(t, float)), cov)
         # what of the step's information is the guess (its prior on the translation, and the
@@ -1123,7 +1148,8 @@ class PlanarOdometry:
             guess[0, 0] = 1.0 / sigma_yaw ** 2
         self._partial_guess(float(yaw_ff), t, cov, how, measured)
         return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"], keyframe_yaw=self._yaw_link(mount_se2),
-                     guess_information=Ji.T @ guess @ Ji, guess_copies=self._since_t), (yaw, t, sigma_yaw ** 2))
+                     guess_information=Ji.T @ guess @ Ji, guess_copies=self._since_t,
+                     translation_measured=counts["far"] > 0), (yaw, t, sigma_yaw ** 2))
 
     def _yaw_link(self, mount_se2) -> KeyframeYaw | None:
         """The base_link heading change from the keyframe of a partial step whose yaw
@@ -1134,19 +1160,53 @@ class PlanarOdometry:
         theta = float(lev_motion_to_base_step(yaw, np.zeros(3), None, mount_se2)[0][2])
         return KeyframeYaw(int(lag), theta, float(var))
 
+    def _far_resection(self, x_lev, yaw: float, t: np.ndarray, mf_yaw, sb: float, info):
+        """``(far, sb)``: the step resected against the far corners' depths
+        (frontend/farcorners.py), ``(step (yaw, t), cov (3, 3), corners)`` or None, from the
+        guess ``(yaw, t)`` or the measured yaw ``mf_yaw``; and the sigma (m) of the guess's
+        translation ``sb`` to fuse it with (the yaw's search keeps ``sb``). It is fused
+        wherever there is one (used only where it refuted the guess, noisy resected steps
+        that passed it became the velocity the next guesses copied: a tuning hall, hall_s3704,
+        0.72 -> 2.21 %). The step's yaw stays the walls', the 2-point method's or the depth
+        images' (resected from 8-28 corners of a small image, yaws erred up to 0.9 deg where
+        those measure hundredths)."""
+        if self._far is None or x_lev is None:
+            return None, sb
+        guess_yaw, yaw_var = (yaw, None) if mf_yaw is None else (mf_yaw[0], mf_yaw[1] ** 2)
+        far = self._far.step(x_lev, (guess_yaw, np.asarray(t, float)), yaw_var)
+        if far is None:
+            return None, sb
+        info.far = {"corners": far[2], "t_m": [float(far[0][1][0]), float(far[0][1][2])],
+                    "sigma_m": [math.sqrt(far[1][1, 1]), math.sqrt(far[1][2, 2])]}
+        # Where they refute the guess (chi-square 9.21 over both covariances), the guess keeps
+        # no more than the platform's reach: held at a stop's speed it outweighed a resection
+        # of the base driving on (hall_s7700 of the low-texture speed-dip probe). Widened
+        # wherever there was a resection, a weak one (8 corners, 86 mm) left a textureless
+        # corridor's step to its walls at a yaw 2.5 deg off (tests/test_drift_free_yaw.py).
+        d = np.array([far[0][1][0] - t[0], far[0][1][2] - t[2]])
+        refuted = float(d @ np.linalg.solve(far[1][1:, 1:] + np.eye(2) * sb * sb, d)) > self._dpp_opt.chi2
+        info.far["refutes_guess"] = refuted
+        return far, max(sb, self.config.odometry.bridge_max_speed * self._dt) if refuted else sb
+
     def _partial_translation(self, walls1, walls2, yaw: float, yaw_ff: float, prior: np.ndarray, prior_cov, pts,
-                             info, wide: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
+                             info, wide: bool = False, far=None) -> tuple[np.ndarray, np.ndarray, dict]:
         """A partial step's levelled ``(t_x, t_z)`` (2,), its (2, 2) covariance and the
         constraint counts: walls seen in both frames at the step's ``yaw``, the 1-point
         translation of a few 3-D matches and the depth alignment at the frame-to-frame
         ``yaw_ff``, over the guess ``prior`` with ``prior_cov``. ``wide``: the yaw is not
-        one walls or corners measured (:meth:`_dense_translation`); then no 3-D matches."""
+        one walls or corners measured (:meth:`_dense_translation`); then no 3-D matches.
+        ``far``: the step resected against far corners (:meth:`_far_resection`), or None."""
         c = self.config.odometry
         walls = wall_constraints(walls1, walls2, yaw, prior, c, prior_cov)
         t_xz, cov_t = translation_from_walls(walls, prior, prior_cov)
         # at a guessed yaw a point's translation is off sideways by its depth times the yaw's
         # error, which its covariance does not state: only walls and the alignment measure
         points, n_points = self._point_translation(pts, yaw_ff, (t_xz, cov_t), info) if not wide else ([], 0)
+        if far is not None:
+            # its (2, 2) covariance as two independent constraints along its axes
+            lam, vec = np.linalg.eigh(far[1][1:, 1:])
+            tf = np.array([far[0][1][0], far[0][1][2]])
+            points = points + [(vec[:, j], float(vec[:, j] @ tf), float(lam[j])) for j in range(2)]
         if points:
             t_xz, cov_t = translation_from_walls(walls + points, prior, prior_cov)
         # walls of two directions measured the whole translation already; a few 3-D matches
@@ -1155,7 +1215,8 @@ class PlanarOdometry:
         dense = [] if len(walls) >= 2 else self._dense_translation(yaw_ff, t_xz, cov_t, info, wide)
         if dense:
             t_xz, cov_t = translation_from_walls(walls + points + dense, prior, prior_cov)
-        return t_xz, cov_t, {"walls": len(walls), "points": n_points, "dense": len(dense)}
+        return t_xz, cov_t, {"walls": len(walls), "points": n_points, "dense": len(dense),
+                             "far": far[2] if far is not None else 0}
 
     def _partial_guess(self, yaw_ff: float, t: np.ndarray, cov: np.ndarray, how: str, measured: bool) -> None:
         """The constant-velocity guess after a partial step of levelled ``t`` (3,), ``cov``

@@ -544,3 +544,31 @@ def test_the_motion_prior_weighs_the_front_ends_guess_as_one_error_per_gap():
     assert errs["keep"] > 0.5 * raw_err        # ten independent guesses outweigh the prior
     assert errs["correlated"] < 0.7 * errs["keep"]
     assert errs["replace"] < 0.15 * raw_err    # the prior alone bridges the change of speed
+
+
+def test_a_partial_step_whose_translation_was_measured_gets_no_motion_prior():
+    """Partial steps resected against far corners (``Step.translation_measured``) carry a
+    measured translation, not the guess: the motion prior, which ties the velocity across
+    guessed steps, leaves them alone (on two tuning halls it moved the smoothed end 0.2-0.5 %
+    of the path while the raw chain held). The same steps unmarked get the prior."""
+    rng = np.random.default_rng(23)
+    speeds = np.concatenate([np.full(30, 0.5), np.linspace(0.5, 0.0, 10), np.linspace(0.0, 0.5, 10), np.full(30, 0.5)])
+    truth = _wobbling_truth(speeds)
+    gap = set(range(31, 51))
+    priors = {}
+    for marked in (True, False):
+        res = _gap_results(truth, gap, lambda k: se2_between(truth[k - 1], truth[k])[0], rng)
+        for k in gap:
+            st = res[k].step
+            info = st.information.copy()
+            info[0, 0] = 1.0 / 0.003 ** 2  # measured to 3 mm
+            res[k] = FrameResult(k, res[k].stamp, Step(st.pose, info, st.status, 0, translation_measured=marked), [])
+        g = PlanarPoseGraph(BackendConfig(manhattan=False))
+        for r in res:
+            g.add_frame(r)
+        est = g.optimize()
+        priors[marked] = g.stats["factors"].get("motion_prior", 0)
+        if marked:  # the measured gap is the chain: no prior bends it
+            d = np.linalg.norm(est[50, :2] - est[30, :2]) - np.linalg.norm(truth[50, :2] - truth[30, :2])
+            assert abs(float(d)) < 0.02
+    assert priors[True] == 0 and priors[False] > 10

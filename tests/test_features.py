@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planar_vo.frontend.config import FeatureConfig
-from planar_vo.frontend.features import FeatureTracker, lift, undistort
+from planar_vo.frontend.features import FeatureTracker, lift, undistort, unread
 from planar_vo.core.types import CameraIntrinsics
 
 K = CameraIntrinsics(640, 480, 500.0, 500.0, 319.5, 239.5)
@@ -94,6 +94,24 @@ def test_lift_uses_depth_and_rejects_edges_and_holes():
     depth2 = np.full((480, 640), 2.5, np.float32)
     depth2[200, 200] = 0.0
     assert lift(px[:1], xy[:1], depth2, FeatureConfig())[0, 2] == pytest.approx(2.5)
+
+
+def test_unread_is_beyond_the_range_not_an_edge_or_a_hole_among_readings():
+    """Far corners (frontend/farcorners.py) are those with no reading around them at all: a
+    region the sensor does not reach (0 = no reading, or past its range), a dropout wider
+    than the depth window; not a depth edge, nor a corner whose window holds a reading."""
+    depth = np.full((480, 640), 2.0, np.float32)
+    depth[:, 400:] = 0.0            # beyond the range (no reading)
+    depth[:200, 300:400] = 9.5      # read, but past the 8 m range
+    depth[100:110, 100:110] = 0.0   # a dropout wider than the 3 x 3 window
+    depth[203:205, 103:105] = 0.0   # a hole inside it
+    px = np.array([[500.0, 300.0], [350.0, 100.0], [399.6, 300.0], [104.0, 104.0], [104.0, 204.0],
+                   [200.0, 300.0]])
+    got = unread(px, depth, FeatureConfig())
+    assert got.tolist() == [True, True, False, True, False, False]
+    tr = FeatureTracker(K)
+    assert tr._make_set(px.astype(np.float32), depth).unread.tolist() == got.tolist()
+    assert unread(px[:0], depth, FeatureConfig()).shape == (0,)
 
 
 def test_bad_input():

@@ -2,7 +2,10 @@
 
 Workshop, not product: :func:`make_planar_problem` simulates what the front-end's solvers
 (:mod:`planar_vo.frontend.solvers`) and estimators see -- levelled normalised coordinates
-and depth points with image noise, depth noise, levelling errors and outliers.
+and depth points with image noise, depth noise, levelling errors and outliers;
+:func:`make_far_corner_drive` a drive through an open hall whose corners lie beyond the
+depth range, for the far corners' triangulation and resection
+(:mod:`planar_vo.frontend.farcorners`).
 """
 from __future__ import annotations
 
@@ -169,3 +172,50 @@ def make_planar_problem(
         tilt1=E1, tilt2=E2, focal=focal,
         wall_heading1=heading_of_direction(wall), wall_heading2=heading_of_direction(R @ wall),
     )
+
+
+@dataclass
+class FarCornerDrive:
+    """A base driving through an open hall, as :class:`planar_vo.frontend.farcorners.FarCorners`
+    and the front-end see it: the same world corners in every frame.
+
+    ``x`` (F, N, 2) float64: levelled normalised coordinates per frame (image noise
+    included); ``P`` (F, N, 3): levelled points as the sensor reads them, NaN where it does
+    not (the far corners always; the near ones in ``depth_frames`` only); ``steps``: the F-1
+    true levelled steps ``(yaw, t (3,))`` into frames 1..F-1 (``X_i = R_y(yaw) X_{i-1} + t``).
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    steps: list
+    speeds: np.ndarray
+
+
+def make_far_corner_drive(seed: int, speeds, *, n_far: int = 80, n_near: int = 12, far_m=(6.0, 14.0),
+                          pixel_px: float = 0.3, focal: float = 540.7, depth_frames=None,
+                          weave_deg: float = 0.2) -> FarCornerDrive:
+    """A drive forward at ``speeds`` (F-1,) metres per step with a small weave (step yaws of
+    up to ``weave_deg``): ``n_far`` corners ``far_m`` ahead beyond the depth range (pillars,
+    doors, boxes of a hall) and ``n_near`` floor corners 1.5-3.5 m ahead with Kinect-like
+    depth noise in the frames ``depth_frames`` (F,) bool (default all). Seeded."""
+    rng = np.random.default_rng(seed)
+    speeds = np.asarray(speeds, dtype=float)
+    F = len(speeds) + 1
+    depth_frames = np.ones(F, bool) if depth_frames is None else np.asarray(depth_frames, bool)
+    far = np.column_stack([rng.uniform(-6, 6, n_far), rng.uniform(-2.5, 0.7, n_far), rng.uniform(*far_m, n_far)])
+    near = np.column_stack([rng.uniform(-1.2, 1.2, n_near), np.full(n_near, 0.8),
+                            rng.uniform(1.5, 3.5, n_near) + speeds.sum()])
+    X = np.vstack([far, near])
+    steps = [(math.radians(weave_deg) * math.sin(0.2 * i), np.array([0.0, 0.0, -v])) for i, v in enumerate(speeds)]
+    xs, Ps = [], []
+    sig = pixel_px / focal
+    for i in range(F):
+        if i:
+            X = X @ rot_y(steps[i - 1][0]).T + steps[i - 1][1]
+        xs.append(X[:, :2] / X[:, 2:] + rng.normal(0, sig, (len(X), 2)))
+        P = X * (1.0 + rng.normal(0, 1.5e-3 * (1 + X[:, 2:] ** 2) / X[:, 2:], (len(X), 1)))
+        P[:n_far] = np.nan
+        if not depth_frames[i]:
+            P[n_far:] = np.nan
+        Ps.append(P)
+    return FarCornerDrive(np.array(xs), np.array(Ps), steps, speeds)
