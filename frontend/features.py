@@ -77,12 +77,7 @@ def lift(px: np.ndarray, xy: np.ndarray, depth: np.ndarray, config: FeatureConfi
     if n == 0:
         return out
     h, w = depth.shape
-    r = config.depth_window
-    cols = np.clip(np.rint(px[:, 0]).astype(np.int64), r, w - 1 - r)
-    rows = np.clip(np.rint(px[:, 1]).astype(np.int64), r, h - 1 - r)
-    off = np.arange(-r, r + 1)
-    win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
-    win = win.reshape(n, -1).astype(np.float64)
+    win = _depth_windows(px, depth, config.depth_window).astype(np.float64)
     ok = (win >= depth_range[0]) & (win <= depth_range[1])
     centre = win[:, win.shape[1] // 2]
     # Depth of the pixel itself when readable, else the mean of the readable neighbours.
@@ -107,13 +102,19 @@ def unread(px: np.ndarray, depth: np.ndarray, config: FeatureConfig,
     readings are there and disagree). Far corners (frontend/farcorners.py) are these."""
     if len(px) == 0:
         return np.zeros(0, bool)
+    win = _depth_windows(px, depth, config.depth_window)
+    return ~((win >= depth_range[0]) & (win <= depth_range[1])).any(1)
+
+
+def _depth_windows(px: np.ndarray, depth: np.ndarray, r: int) -> np.ndarray:
+    """(N, (2 r + 1)^2) depth readings around the pixels nearest to ``px`` (N, 2) (N > 0),
+    the windows kept inside the image."""
     h, w = depth.shape
-    r = config.depth_window
     cols = np.clip(np.rint(px[:, 0]).astype(np.int64), r, w - 1 - r)
     rows = np.clip(np.rint(px[:, 1]).astype(np.int64), r, h - 1 - r)
     off = np.arange(-r, r + 1)
     win = depth[rows[:, None, None] + off[None, :, None], cols[:, None, None] + off[None, None, :]]
-    return ~((win >= depth_range[0]) & (win <= depth_range[1])).reshape(len(px), -1).any(1)
+    return win.reshape(len(px), -1)
 
 
 def straddles_depth_jump(px: np.ndarray, depth: np.ndarray, half: int, max_rel: float,
