@@ -127,6 +127,7 @@ def _drive_odometry(d, config: FrontendConfig) -> list:
         info = FrameDiagnostics()
         info.floor_seen = True
         yaw_prior = odo._last_motion[0] if odo._last_motion is not None else 0.0
+        odo._unread = ~np.isfinite(d.P[i][:, 2])  # as process() takes it from the tracker (features.unread)
         step, _ = odo._measure(d.x[i], d.P[i], ident if i else ident[:0], [], [], [], yaw_prior, info)
         odo._prev = _Prev(None, d.x[i], d.P[i], [], [], [])
         odo._n += 1

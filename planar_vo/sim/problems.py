@@ -182,7 +182,8 @@ class FarCornerDrive:
     ``x`` (F, N, 2) float64: levelled normalised coordinates per frame (image noise
     included); ``P`` (F, N, 3): levelled points as the sensor reads them, NaN where it does
     not (the far corners always; the near ones in ``depth_frames`` only); ``steps``: the F-1
-    true levelled steps ``(yaw, t (3,))`` into frames 1..F-1 (``X_i = R_y(yaw) X_{i-1} + t``).
+    true levelled steps ``(yaw, t (3,))`` into frames 1..F-1 (``X_i = R_y(yaw) X_{i-1} + t``);
+    ``speeds`` (F-1,): metres per step.
     """
 
     x: np.ndarray
@@ -196,8 +197,9 @@ def make_far_corner_drive(seed: int, speeds, *, n_far: int = 80, n_near: int = 1
                           weave_deg: float = 0.2) -> FarCornerDrive:
     """A drive forward at ``speeds`` (F-1,) metres per step with a small weave (step yaws of
     up to ``weave_deg``): ``n_far`` corners ``far_m`` ahead beyond the depth range (pillars,
-    doors, boxes of a hall) and ``n_near`` floor corners 1.5-3.5 m ahead with Kinect-like
-    depth noise in the frames ``depth_frames`` (F,) bool (default all). Seeded."""
+    doors, boxes of a hall) and ``n_near`` floor corners that are 1.5-3.5 m ahead in the last
+    frame, read with Kinect-like depth noise in the frames ``depth_frames`` (F,) bool
+    (default all). Seeded."""
     rng = np.random.default_rng(seed)
     speeds = np.asarray(speeds, dtype=float)
     F = len(speeds) + 1
