@@ -156,7 +156,8 @@ class FrameDiagnostics:
     keyframe_yaw: dict | None = None
     depth_yaw: dict | None = None  # a step no wall or corner turned: its yaw from the depth images (no yaw_deg: none found)
     #: a partial step resected against far corners (frontend/farcorners.py): corners used,
-    #: the levelled translation (t_x, t_z) and its sigmas (m), whether it refuted the guess
+    #: the levelled translation (t_x, t_z) and its sigmas (m), whether it refuted the guess,
+    #: or ``refused``: why the platform cannot make that motion ("beyond reach", "sideways")
     far: dict | None = None
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
     #: the keyframe the step was measured against: frames since it, its corners still

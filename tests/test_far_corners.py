@@ -161,3 +161,38 @@ def test_front_end_keeps_a_restart_among_far_corners(far_corners):
         assert all(abs(r - 1.0) < 0.05 for r in sums), sums
     else:
         assert all(abs(r - 1.0) > 0.3 for r in sums), sums
+
+
+def _lev_for_base_step(yaw: float, x: float, y: float) -> np.ndarray:
+    """Levelled camera translation (3,) of a base_link step ``(x, y, yaw)`` (the map from
+    the levelled translation to the base step is affine at a given yaw)."""
+    def base_xy(tx, tz):
+        return lev_motion_to_base_step(yaw, np.array([tx, 0.0, tz]), None, MOUNT_SE2)[0][:2]
+    k = base_xy(0.0, 0.0)
+    M = np.column_stack([base_xy(1.0, 0.0) - k, base_xy(0.0, 1.0) - k])
+    t = np.linalg.solve(M, np.array([x, y]) - k)
+    return np.array([t[0], 0.0, t[1]])
+
+
+@pytest.mark.parametrize("lateral_slip", [0.03, 0.0])
+def test_a_resection_the_platform_cannot_drive_is_refused(lateral_slip):
+    """At 10 Hz (1 m/s top speed: 100 mm a frame) on a wheeled base: a 39 mm step ahead, a
+    turning one along the chord of its heading change and one at the top speed are
+    resections to use; one 25 mm sideways of a 39 mm step (5 of its sigmas) and one 300 mm
+    backwards (5 sigmas beyond the reach) are not (an untextured hall of an unseen set,
+    hall_s7801, resected 39 mm steps 188-297 mm backwards and 290 mm sideways). A
+    holonomic base (``lateral_slip`` 0) may step sideways."""
+    config = FrontendConfig()
+    config.odometry.lateral_slip = lateral_slip
+    odo = PlanarOdometry(K, Mount(T_BASE_CAM), config)
+    odo._dt = 0.1
+
+    def verdict(yaw, t, sigma):
+        return odo._impossible_motion(yaw, t, np.diag([1e-6, sigma ** 2, sigma ** 2]), MOUNT_SE2)
+    turn = math.radians(3.0)
+    assert verdict(0.0, _lev_for_base_step(0.0, 0.039, 0.0), 0.005) is None
+    assert verdict(turn, _lev_for_base_step(turn, 0.039, 0.039 * math.tan(turn / 2)), 0.005) is None
+    assert verdict(0.0, _lev_for_base_step(0.0, 0.100, 0.0), 0.010) is None
+    assert verdict(0.0, _lev_for_base_step(0.0, -0.300, 0.0), 0.040) == "beyond reach"
+    sideways = verdict(0.0, _lev_for_base_step(0.0, 0.039, 0.025), 0.005)
+    assert sideways == ("sideways" if lateral_slip > 0 else None)
