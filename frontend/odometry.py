@@ -106,6 +106,16 @@ def _lev_to_base(p: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
                                           m_base_lev)
 
 
+def lev_to_base_affine(yaw: float, m_base_lev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(k (2,), M (2, 2))``: at a given levelled ``yaw`` the base_link step's ``(x, y)``
+    is ``k + M (t_x, t_z)``, affine in the levelled translation (``k`` the lever arm's
+    part; :func:`lev_motion_to_base_step`)."""
+    def base_xy(tx: float, tz: float) -> np.ndarray:
+        return lev_motion_to_base_step(yaw, np.array([tx, 0.0, tz]), None, m_base_lev)[0][:2]
+    k = base_xy(0.0, 0.0)
+    return k, np.column_stack([base_xy(1.0, 0.0) - k, base_xy(0.0, 1.0) - k])
+
+
 def lev_to_base_jacobian(yaw: float, t: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
     """(3, 3) Jacobian of the base_link step ``(x, y, theta)`` with respect to the levelled
     motion ``(yaw, t_x, t_z)`` (:func:`lev_motion_to_base_step`), by central differences
@@ -1200,7 +1210,7 @@ class PlanarOdometry:
         beyond ``chi2`` (:meth:`_wheeled_prior` at the resection's own distance along).
         Resections from 8-13 corners of an untextured hall (an unseen set's log,
         hall_s7801) made 39 mm steps 188 and 297 mm backwards and 290 mm sideways, at
-        sigmas of 16-50 mm; taken as measured, its smoothed end point went 1.8 -> 11 % off."""
+        sigmas of 16-51 mm; taken as measured, its smoothed end point went 1.8 -> 11 % off."""
         c = self.config.odometry
         t2, C = np.array([t[0], t[2]]), cov[1:, 1:]
         reach = c.bridge_max_speed * self._dt
@@ -1292,11 +1302,7 @@ class PlanarOdometry:
         lateral_slip |x|``). With an isotropic guess a wall paired with another plane moved a
         turning step 58 mm sideways, stated at 2.8 mm, on an untextured test hall."""
         c = self.config.odometry
-
-        def base_xy(tx: float, tz: float) -> np.ndarray:
-            return lev_motion_to_base_step(yaw, np.array([tx, 0.0, tz]), None, mount_se2)[0][:2]
-        k = base_xy(0.0, 0.0)  # the lever arm's part; the map is affine in t
-        M = np.column_stack([base_xy(1.0, 0.0) - k, base_xy(0.0, 1.0) - k])
+        k, M = lev_to_base_affine(yaw, mount_se2)
         x = float((M @ t_guess + k)[0])
         half = math.tan(yaw / 2.0)
         slip = c.lateral_floor_m + c.lateral_slip * math.hypot(x, sb)

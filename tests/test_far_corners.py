@@ -18,7 +18,7 @@ from planar_vo.core.types import CameraIntrinsics, Mount
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.farcorners import FarCorners, FarOptions, resect, triangulate
 from planar_vo.frontend.keyframe import rot_y
-from planar_vo.frontend.odometry import PlanarOdometry, _Prev, lev_motion_to_base_step
+from planar_vo.frontend.odometry import PlanarOdometry, _Prev, lev_motion_to_base_step, lev_to_base_affine
 from planar_vo.sim.problems import make_far_corner_drive
 
 K = CameraIntrinsics(960, 540, 540.7, 540.7, 479.5, 269.5)
@@ -164,12 +164,8 @@ def test_front_end_keeps_a_restart_among_far_corners(far_corners):
 
 
 def _lev_for_base_step(yaw: float, x: float, y: float) -> np.ndarray:
-    """Levelled camera translation (3,) of a base_link step ``(x, y, yaw)`` (the map from
-    the levelled translation to the base step is affine at a given yaw)."""
-    def base_xy(tx, tz):
-        return lev_motion_to_base_step(yaw, np.array([tx, 0.0, tz]), None, MOUNT_SE2)[0][:2]
-    k = base_xy(0.0, 0.0)
-    M = np.column_stack([base_xy(1.0, 0.0) - k, base_xy(0.0, 1.0) - k])
+    """Levelled camera translation (3,) of a base_link step ``(x, y, yaw)``."""
+    k, M = lev_to_base_affine(yaw, MOUNT_SE2)
     t = np.linalg.solve(M, np.array([x, y]) - k)
     return np.array([t[0], 0.0, t[1]])
 
