@@ -27,8 +27,10 @@ candidate is listed in the report with its verdict and reason.
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -243,11 +245,14 @@ class LoopCloser:
 
     ``intrinsics``: the colour camera; ``T_base_cam``: (4, 4) mount; ``seed``: verification's
     RANSAC seed (each pair gets ``seed + pair number``, so a run is reproducible);
-    ``frontend``: the run's front-end settings (depth range, corner lifting).
+    ``frontend``: the run's front-end settings (depth range, corner lifting);
+    ``background``: keyframes are made and verified on a worker thread (:meth:`offer`;
+    call :meth:`flush` before solving the graph).
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, T_base_cam: np.ndarray, config: LoopConfig,
-                 places: PlaceConfig, graph, seed: int = 0, frontend: FrontendConfig | None = None):
+                 places: PlaceConfig, graph, seed: int = 0, frontend: FrontendConfig | None = None,
+                 background: bool = False):
         self.intrinsics, self.T_base_cam = intrinsics, np.asarray(T_base_cam, dtype=float)
         # keyframe points are lifted as the odometry lifts its corners (same depth range and filter)
         fe = frontend or FrontendConfig()
@@ -265,25 +270,71 @@ class LoopCloser:
         self._closed: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         self._now: tuple = ()     # the new keyframe's chain poses and prior covariances while it is verified
         self.time_s: dict[str, float] = {"keyframes": 0.0, "candidates": 0.0, "verify": 0.0}
+        #: CPU seconds of the keyframe work done on the background thread (``background``)
+        self.background_cpu_s = 0.0
+        self._background = background
+        self._pending: Future | None = None
+        self._to_add: list[tuple[Candidate, tuple]] = []  # closures verified, not yet in the graph
 
     def offer(self, frame, result, R_lev_cam: np.ndarray) -> None:
         """The pipeline's frame ``frame`` (RGBDFrame) with its front-end ``result``, after the
-        graph has added it (the graph's pose index is ``result``'s order in the run)."""
+        graph has added it (the graph's pose index is ``result``'s order in the run).
+
+        With ``background``, a due keyframe is made, matched and verified on a worker
+        thread while the caller goes on to the next frame (ORB releases the interpreter
+        lock); its closures reach the graph at the next :meth:`offer` or :meth:`flush`,
+        in the same order, so the batch solution is the one the synchronous closer gives
+        (the factors are appended one frame later)."""
+        self.flush()
         if result.step is not None:
             cov = _covariance(result.step.information)
             self._chain.step(np.asarray(result.step.pose, float), cov,
                              step_prior_covariance(cov, result.step.status, self.config))
         if self.keyframe_frames and not self._keyframe_due():
             return
+        # what the keyframe reads of the graph, read here: the caller adds the next frame to
+        # the graph while the worker runs
+        index, graph_links = len(self.graph) - 1, self.graph.manhattan_links() if self._held is not None else []
+        if not self._background:
+            self._keyframe(frame, result, R_lev_cam, index, graph_links)
+            self._add_verified()
+            return
+        self._pending = _worker().submit(self._timed_keyframe, frame, result, R_lev_cam, index, graph_links)
+
+    def flush(self) -> None:
+        """Finish the keyframe the worker is on, if any, and add its closures to the graph
+        (a worker's error is raised here)."""
+        if self._pending is not None:
+            error = self._pending.exception()  # waits; an interrupt here leaves the job pending
+            self._pending = None
+            if error is not None:
+                raise error
+        self._add_verified()
+
+    def _timed_keyframe(self, *args) -> None:
+        c0 = time.thread_time()
+        try:
+            self._keyframe(*args)
+        finally:
+            self.background_cpu_s += time.thread_time() - c0
+
+    def _add_verified(self) -> None:
+        for cand, (a, b, pose, information) in self._to_add:
+            cand.closure_id = self.graph.add_closure(a, b, pose, information,
+                                                     info={"inliers": cand.inliers, "source": cand.source})
+        self._to_add.clear()
+
+    def _keyframe(self, frame, result, R_lev_cam: np.ndarray, index: int, graph_links: list) -> None:
+        """Make the frame a keyframe (pose ``index``), name and verify its candidates."""
         t0 = time.perf_counter()
         gray = cv2.cvtColor(frame.color, cv2.COLOR_BGR2GRAY) if frame.color.ndim == 3 else frame.color
-        kf = make_keyframe(len(self.graph) - 1, frame.stamp, gray, frame.depth.astype(np.float32, copy=False),
+        kf = make_keyframe(index, frame.stamp, gray, frame.depth.astype(np.float32, copy=False),
                            self.intrinsics, R_lev_cam, result.manhattan, self.places, **self._lift)
         t1 = time.perf_counter()
         self.time_s["keyframes"] += t1 - t0
         rel, cov = self._chain.relative_to_now()  # every keyframe -> now, once per keyframe
         prior_cov = self._chain.prior_to_now()
-        links = self._held_update(kf.index)
+        links = self._held_update(kf.index, graph_links)
         found = self._candidates(kf, rel, cov)
         t2 = time.perf_counter()
         self.time_s["candidates"] += t2 - t1
@@ -304,12 +355,13 @@ class LoopCloser:
         self._indexed.append(len(self.keyframes) - 1)
         self.index.add(kf)
 
-    def _held_update(self, index: int) -> list[tuple[int, float, float]]:
+    def _held_update(self, index: int, graph_links: list) -> list[tuple[int, float, float]]:
         """Move the Manhattan-held relative poses to the new keyframe (pose ``index``) and
-        update them with its links; returns the links ``(frame, measured, sigma)``."""
+        update them with its links (of ``graph_links``, the graph's last ``manhattan_links``);
+        returns the links ``(frame, measured, sigma)``."""
         if self._held is None:
             return []
-        links = [(int(lk.frame), float(lk.measured), float(lk.sigma)) for lk in self.graph.manhattan_links()
+        links = [(int(lk.frame), float(lk.measured), float(lk.sigma)) for lk in graph_links
                  if lk.pose == index]
         self._held.predict(self._chain.seg_pose, self._chain.seg_prior)
         # the walls' sigmas are stated by a fit, as the measured steps': scaled alike
@@ -417,12 +469,12 @@ class LoopCloser:
             return
         self._closed.append((pos, len(self.keyframe_frames), np.asarray(check.pose, float), check.covariance))
         cand.sigma = [float(v) for v in np.sqrt(np.diag(_covariance(check.information)))]
-        cand.closure_id = self.graph.add_closure(a.index, b.index, check.pose, check.information,
-                                                 info={"inliers": cand.inliers, "source": cand.source})
+        self._to_add.append((cand, (a.index, b.index, check.pose, check.information)))
 
     def report(self) -> dict:
         """The ``loop_closure`` section of ``report.json`` (call after the graph is solved:
         closures the graph removed are marked ``removed`` with its reason)."""
+        self.flush()
         removed = {}
         if hasattr(self.graph, "closures"):
             removed = {c["id"]: c.get("reason") for c in self.graph.closures() if c.get("status") == "removed"}
@@ -451,6 +503,7 @@ class LoopCloser:
 
     def accepted(self) -> list[tuple[int, int]]:
         """``(a, b)`` pose indices of the closures in the final solution."""
+        self.flush()
         return [(c.a, c.b) for c in self.candidates if c.verdict == "accepted"]
 
 
@@ -468,6 +521,13 @@ def _count(items) -> dict[str, int]:
     for k in items:
         out[k] = out.get(k, 0) + 1
     return out
+
+
+@functools.lru_cache(maxsize=1)
+def _worker() -> ThreadPoolExecutor:
+    """The one thread keyframes are made on (:meth:`LoopCloser.offer` with ``background``;
+    a closer waits for its job before the next, so one thread serves every run)."""
+    return ThreadPoolExecutor(1, thread_name_prefix="planar-vo-keyframes")
 
 
 def _covariance(information: np.ndarray) -> np.ndarray:

@@ -43,6 +43,7 @@ from planar_vo.io.atomic import write_text_atomic
 from planar_vo.io.cliargs import open_log_with_overrides
 from planar_vo.io.trajectory import poses_format_for, read_tum_trajectory, write_poses_mcap, write_tum_trajectory
 from planar_vo.planarity_verdict import frame_summary, is_levelled, planarity_report
+from planar_vo.plotting import PlotProcess
 from planar_vo.prefetch import Prefetcher, ProcessPrefetcher, process_prefetch_available
 from planar_vo.progress import Progress
 from planar_vo.wheel_fusion import (motion_with_wheel_odometry, wheel_steps_for_run, wheel_trajectory,
@@ -124,11 +125,12 @@ class _TrackAhead:
                 close()
 
 
-def _prepare_outputs(config: RunConfig, poses_format: str) -> float:
-    """Import the output stage's modules (matplotlib alone takes ~0.5 s) while the frames
-    are processed, so that the end of the run does not wait for them; returns the CPU
-    seconds this took. ``poses_format``: ``poses.mcap``'s schemas (``foxglove`` or
-    ``ros2``): only that family's modules (each takes ~0.15-0.3 s of CPU)."""
+def _prepare_outputs(config: RunConfig, poses_format: str, plot: bool = True) -> float:
+    """Import the output stage's modules (matplotlib alone takes ~0.5 s; ``plot=False``:
+    not matplotlib, a :class:`PlotProcess` draws the plot) while the frames are processed,
+    so that the end of the run does not wait for them; returns the CPU seconds this took.
+    ``poses_format``: ``poses.mcap``'s schemas (``foxglove`` or ``ros2``): only that
+    family's modules (each takes ~0.15-0.3 s of CPU)."""
     c0 = time.thread_time()
     try:
         if config.output.poses_mcap and poses_format == "foxglove":
@@ -141,7 +143,7 @@ def _prepare_outputs(config: RunConfig, poses_format: str) -> float:
 
             from planar_vo.io import rosmsg
             rosmsg.typestore(rosmsg.CDR)  # ROS 2 poses.mcap: the type store is built once
-        if config.output.plot:
+        if config.output.plot and plot:
             import matplotlib
 
             matplotlib.use("Agg")
@@ -168,45 +170,50 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
     out.mkdir(parents=True, exist_ok=True)
     clock = _Stopwatch()
     prepared = _OutputImports(config)
-    with open_input(log_path, config) as log:
-        log.set_color_mode("gray")  # the odometry and loop closure read intensity only
-        prepared.for_log(log)
-        odometry, graph = _level(log, config)
-        wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
-        closer = _loop_closer(log, odometry, graph, config)
-        loop = _process_frames(log, odometry, graph, wheel, closer, config, clock, progress, prepared.start)
-        stats = dict(log.stats)  # before the summary, which may read the log again
-        with clock.stage("summary"):
-            # After a pass over the whole log this reads nothing: the pass recorded what it needs.
-            log_summary = _safe_summary(log)
-        gt = log.ground_truth
-        log_format = getattr(log, "format", "")
-    if not loop.stamps:
-        raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
-                         + (f" ({loop.stop_reason})" if loop.stop_reason else "")
-                         + "; check the topics with 'planar-vo info'")
-    with clock.stage("optimize"):
-        raw, smoothed = _solve(graph, config)
-        no_loops = _solve_without_closures(graph, closer)
-    if gt_path is not None:
-        gt = read_tum_trajectory(gt_path)
-    T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
-    clock.cpu["outputs_import_background"] = prepared.result()
-    with clock.stage("write"):
-        wheel_traj = wheel_trajectory(loop.stamps, wheel.odometry, T_base_cam) if wheel else None
-        loops_section = closer.report() if closer is not None else {"enabled": False}
-        files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj,
-                               closures=closer.accepted() if closer is not None else [])
-        files.update(_write_no_loops(out, loop.stamps, no_loops, T_base_cam))
-        files["steps"] = _write_steps(out / "steps.csv", loop.steps)
-        wheel_section, wheel_files = write_wheel_outputs(out, wheel, wheel_traj, getattr(graph, "stats", {}))
-        files.update(wheel_files)
-    clock.finish()
-    report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock, wheel_section)
-    report["loop_closure"] = _jsonable(loops_section)
-    write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
-    files["report"] = str(out / "report.json")
-    return RunResult(out, report, loop.partial, loop.stop_reason, files)
+    try:
+        with open_input(log_path, config) as log:
+            log.set_color_mode("gray")  # the odometry and loop closure read intensity only
+            prepared.for_log(log)
+            odometry, graph = _level(log, config)
+            wheel = wheel_steps_for_run(log, config)  # the robot's wheel odometry, when the log has it
+            closer = _loop_closer(log, odometry, graph, config)
+            loop = _process_frames(log, odometry, graph, wheel, closer, config, clock, progress, prepared.start)
+            stats = dict(log.stats)  # before the summary, which may read the log again
+            with clock.stage("summary"):
+                # After a pass over the whole log this reads nothing: the pass recorded what it needs.
+                log_summary = _safe_summary(log)
+            gt = log.ground_truth
+            log_format = getattr(log, "format", "")
+        if not loop.stamps:
+            raise InputError(f"{log_path}: no colour/depth frame pairs could be read"
+                             + (f" ({loop.stop_reason})" if loop.stop_reason else "")
+                             + "; check the topics with 'planar-vo info'")
+        with clock.stage("optimize"):
+            raw, smoothed = _solve(graph, config)
+            no_loops = _solve_without_closures(graph, closer)
+        if gt_path is not None:
+            gt = read_tum_trajectory(gt_path)
+        T_base_cam = np.asarray(odometry.mount.T_base_cam, dtype=float)
+        clock.cpu["outputs_import_background"] = prepared.result()
+        with clock.stage("write"):
+            wheel_traj = wheel_trajectory(loop.stamps, wheel.odometry, T_base_cam) if wheel else None
+            loops_section = closer.report() if closer is not None else {"enabled": False}
+            files = _write_outputs(out, config, loop.stamps, raw, smoothed, T_base_cam, gt, log_format, wheel_traj,
+                                   closures=closer.accepted() if closer is not None else [], plotter=prepared.plotter)
+            files.update(_write_no_loops(out, loop.stamps, no_loops, T_base_cam))
+            files["steps"] = _write_steps(out / "steps.csv", loop.steps)
+            wheel_section, wheel_files = write_wheel_outputs(out, wheel, wheel_traj, getattr(graph, "stats", {}))
+            files.update(wheel_files)
+        if prepared.plotter is not None:
+            clock.cpu["plot_process"] = prepared.plotter.cpu_s
+        clock.finish()
+        report = _report(log_path, log_summary, stats, loop, odometry, graph, config, clock, wheel_section)
+        report["loop_closure"] = _jsonable(loops_section)
+        write_text_atomic(out / "report.json", json.dumps(report, indent=2) + "\n")
+        files["report"] = str(out / "report.json")
+        return RunResult(out, report, loop.partial, loop.stop_reason, files)
+    finally:
+        prepared.close()  # the plot process, if the run stopped before the plot
 
 
 class _Stopwatch:
@@ -227,8 +234,9 @@ class _Stopwatch:
 
     def finish(self) -> None:
         self.wall_total = time.perf_counter() - self.t_start
-        # all threads, OpenCV's workers included, and the reader process's (when there is one)
-        self.cpu["process"] = time.process_time() - self.cpu_start + self.cpu.get("reader_process", 0.0)
+        # all threads, OpenCV's workers included, and the reader's and plot's processes (when there are)
+        self.cpu["process"] = (time.process_time() - self.cpu_start + self.cpu.get("reader_process", 0.0)
+                               + self.cpu.get("plot_process", 0.0))
 
 
 class _OutputImports:
@@ -244,6 +252,8 @@ class _OutputImports:
     def __init__(self, config: RunConfig):
         self._config, self._future = config, None
         self._format = config.output.poses_format
+        #: the process drawing trajectory.png (where the platform forks), else None
+        self.plotter: PlotProcess | None = None
 
     def for_log(self, log) -> None:
         """Prepare ``poses.mcap``'s schemas for ``log`` (``output.poses_format: auto``)."""
@@ -252,13 +262,22 @@ class _OutputImports:
 
     def start(self) -> None:
         if self._future is None:
+            if self._config.output.plot and process_prefetch_available():
+                # forked before the side thread starts: a fork copies no thread, and a
+                # module lock an importing thread held would stay held in the child
+                self.plotter = PlotProcess()
             side = ThreadPoolExecutor(1, thread_name_prefix="planar-vo-outputs")
-            self._future = side.submit(_prepare_outputs, self._config, self._format)
+            self._future = side.submit(_prepare_outputs, self._config, self._format, self.plotter is None)
             side.shutdown(wait=False)
 
     def result(self) -> float:
         self.start()
         return self._future.result()
+
+    def close(self) -> None:
+        """End the plot process if the run stopped before handing it the plot."""
+        if self.plotter is not None:
+            self.plotter.close()
 
 
 def _level(log, config: RunConfig):
@@ -318,8 +337,9 @@ def _loop_closer(log, odometry, graph, config: RunConfig) -> LoopCloser | None:
     """The run's loop closer (None when ``loops.enabled`` is off)."""
     if not config.loops.enabled:
         return None
+    # in the background: the keyframe's ORB and matching overlap the next frame's front-end
     return LoopCloser(log.intrinsics, odometry.mount.T_base_cam, config.loops, config.places, graph,
-                      frontend=config.frontend)
+                      frontend=config.frontend, background=True)
 
 
 #: Frames the odometry sees before it processes the first (PlanarOdometry.look_ahead): the
@@ -398,6 +418,15 @@ def _handed_over(odometry, log, frame, tracked, pass_state):
     return frame
 
 
+def _flush_closer(closer: LoopCloser, timings, cpu) -> None:
+    """The last keyframe's closures into the graph, before it is solved; the loop closer's
+    worker-thread CPU joins its stage's."""
+    t0, c0 = time.perf_counter(), time.thread_time()
+    closer.flush()
+    timings["loops"] += time.perf_counter() - t0
+    cpu["loops"] += time.thread_time() - c0 + closer.background_cpu_s
+
+
 def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, clock: _Stopwatch,
                     progress: bool, ahead_seen=None) -> _FrameLoop:
     """Per frame: track (reader) -> estimate (front-end) -> add to the graph (with
@@ -445,6 +474,8 @@ def _process_frames(log, odometry, graph, wheel, closer, config: RunConfig, cloc
         loop.partial, loop.stop_reason = True, "interrupted by the user (Ctrl-C)"
     except PartialResult as exc:
         loop.partial, loop.stop_reason = True, str(exc)
+    if closer is not None:
+        _flush_closer(closer, timings, cpu)
     if isinstance(reader, ProcessPrefetcher):
         if reader.finished is not None:
             log.restore_pass_state(reader.finished["log"])
@@ -598,15 +629,21 @@ def _jsonable(obj):
 
 
 def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_cam, gt,
-                   log_format: str = "", wheel_traj=None, closures=()) -> dict:
+                   log_format: str = "", wheel_traj=None, closures=(), plotter: PlotProcess | None = None) -> dict:
     """raw/smoothed.tum, config.yaml, poses.mcap and trajectory.png; ``wheel_traj`` (the wheel
     odometry alone, as in wheel_odom.tum, or None) goes into poses.mcap and the plot too;
     ``closures``: ``(a, b)`` pose indices of the loop closures kept, drawn as lines between
-    the two smoothed camera positions."""
+    the two smoothed camera positions; ``plotter``: the process that draws the plot while
+    the rest is written (None: drawn here)."""
     raw_traj = _trajectory(stamps, raw, T_base_cam)
     smooth_traj = _trajectory(stamps, smoothed, T_base_cam)
     wheel = {} if wheel_traj is None else {"wheel_odom": wheel_traj}
     files = {}
+    plot_args = ((out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj,
+                                           **{"wheel odometry": t for t in wheel.values()}}, gt),
+                 {"closures": _closure_segments(smooth_traj, closures)})
+    if config.output.plot and plotter is not None:
+        plotter.submit(*plot_args[0], **plot_args[1])
     write_tum_trajectory(out / "raw.tum", raw_traj)
     write_tum_trajectory(out / "smoothed.tum", smooth_traj)
     files["raw"], files["smoothed"] = str(out / "raw.tum"), str(out / "smoothed.tum")
@@ -622,11 +659,10 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
                          format=poses_format_for(log_format) if fmt == "auto" else fmt)
         files["poses_mcap"] = str(out / "poses.mcap")
     if config.output.plot:
-        from planar_vo.plotting import plot_trajectories
+        if plotter is None or not plotter.wait():
+            from planar_vo.plotting import plot_trajectories
 
-        plot_trajectories(out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj,
-                                                   **{"wheel odometry": t for t in wheel.values()}}, gt,
-                          closures=_closure_segments(smooth_traj, closures))
+            plot_trajectories(*plot_args[0], **plot_args[1])
         files["plot"] = str(out / "trajectory.png")
     return files
 

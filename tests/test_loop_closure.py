@@ -122,3 +122,35 @@ def test_summary_line_counts_the_pairs_out_of_view_apart(ring, capsys):
     lc = rep["loop_closure"]
     unseen = lc["not_accepted_by_reason"].get("out_of_view", 0)
     assert f"({unseen} out of view, {lc['rejected'] - unseen} rejected by verification," in line
+
+
+def test_keyframes_in_the_background_change_nothing(ring, tmp_path, monkeypatch):
+    """The run makes and verifies keyframes on a worker thread (LoopCloser(background=True));
+    the closures reach the graph a frame later, in the same order: the same closures and
+    the same solution as the closer run in line."""
+    from planar_vo import loops, pipeline
+    log, cfg, out, rep, _ = ring
+    made = []
+
+    def in_line(*args, **kwargs):
+        closer = loops.LoopCloser(*args, **{**kwargs, "background": False})
+        made.append(closer)
+        return closer
+
+    def closer(log_, odometry, graph, config):
+        return in_line(log_.intrinsics, odometry.mount.T_base_cam, config.loops, config.places, graph,
+                       frontend=config.frontend)
+
+    monkeypatch.setattr(pipeline, "_loop_closer", closer)
+    rep_in_line = _run(log, tmp_path / "in_line")
+    assert made and not made[0]._background
+
+    def verdicts(r):
+        return [(c["a"], c["b"], c["verdict"], c["reason"], c["inliers"], c["pose"], c["closure_id"])
+                for c in r["loop_closure"]["list"]]
+
+    assert verdicts(rep_in_line) == verdicts(rep)
+    assert rep["loop_closure"]["accepted"] >= 3
+    a = read_tum_trajectory(out / "batch" / "smoothed.tum").positions
+    b = read_tum_trajectory(tmp_path / "in_line" / "smoothed.tum").positions
+    np.testing.assert_array_equal(a, b)

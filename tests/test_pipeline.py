@@ -243,3 +243,37 @@ def test_intrinsics_flags_override_the_log(lturn_log, tmp_path):
                  "--fx", "400", "--fy", "400", "--cx", str(c.cx), "--cy", str(c.cy)]) == 0
     wrong = read_tum_trajectory(tmp_path / "c" / "smoothed.tum").poses
     assert np.abs(wrong[:, :3, 3] - b[:, :3, 3]).max() > 1e-3  # a wrong focal length changes the result
+
+
+def test_the_plot_process_draws_what_the_run_would_draw(batch_run, lturn_log, tmp_path, monkeypatch):
+    """trajectory.png comes from a forked process that imported matplotlib during the run
+    (planar_vo.plotting.PlotProcess, its CPU in report.json); drawn in the run's own process
+    instead (no fork), the file is the same, byte for byte."""
+    from planar_vo import pipeline
+
+    _, out = batch_run
+    r = json.loads((out / "report.json").read_text())
+    assert r["cpu_ms_per_frame"]["plot_process"] > 0
+    monkeypatch.setattr(pipeline, "process_prefetch_available", lambda: False)
+    assert main(["run", str(lturn_log), "--out", str(tmp_path), "--quiet"]) == 0
+    assert "plot_process" not in json.loads((tmp_path / "report.json").read_text())["cpu_ms_per_frame"]
+    assert (tmp_path / "trajectory.png").read_bytes() == (out / "trajectory.png").read_bytes()
+
+
+def test_a_plot_the_process_cannot_draw_is_said_so(tmp_path):
+    """PlotProcess.wait is False when the child could not write the file (the run then
+    draws it itself and sees the error); a process given nothing to draw just ends."""
+    from planar_vo.core.types import Trajectory
+    from planar_vo.plotting import PlotProcess
+
+    traj = Trajectory(np.arange(3.0), np.tile(np.eye(4), (3, 1, 1)))
+    bad = PlotProcess()
+    bad.submit(tmp_path / "no such folder" / "trajectory.png", {"raw": traj})
+    assert bad.wait() is False
+    good = PlotProcess()
+    good.submit(tmp_path / "trajectory.png", {"raw": traj})
+    assert good.wait() is True and good.cpu_s > 0
+    assert (tmp_path / "trajectory.png").stat().st_size > 0
+    idle = PlotProcess()
+    idle.close()
+    assert not idle._proc.is_alive()

@@ -390,6 +390,7 @@ def test_trajectory_png_draws_the_wheel_odometry(odom_logs, tmp_path, monkeypatc
     """The plot's legend: ground truth, raw, smoothed, wheel odometry (captured at savefig)."""
     import matplotlib.figure
 
+    from planar_vo import pipeline
     from planar_vo.pipeline import run
     labels = []
     real_savefig = matplotlib.figure.Figure.savefig
@@ -399,6 +400,8 @@ def test_trajectory_png_draws_the_wheel_odometry(odom_logs, tmp_path, monkeypatc
         return real_savefig(fig, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+    # drawn in this process (not a forked PlotProcess), so the patched savefig sees it
+    monkeypatch.setattr(pipeline, "process_prefetch_available", lambda: False)
     run(odom_logs["ros2_mcap"], tmp_path, load_config(None, {}), progress=False)
     assert (tmp_path / "trajectory.png").stat().st_size > 0
     assert labels == ["ground truth", "raw", "smoothed", "wheel odometry", "start"]
