@@ -1072,9 +1072,10 @@ class PlanarOdometry:
         """:meth:`_vetoed` for the Manhattan yaw ``mf_yaw`` (``_dpp``) of a step whose 1-point
         translation failed: the partial step would keep that yaw, so it passes the same
         test, its translation the best the 3-D matches give at that yaw. Without it a track
-        that took a surface 5.9 deg off (an unseen low-texture loop, seed 8007, at a
-        corner; 3 of 8 depths agreeing) turned the raw chain by 5.9 deg in one partial step
-        stated at 0.1 deg, while the 2-point yaw of 27 matches had it right."""
+        whose heading jumped 6.2 deg (loop_s8007 of the low-texture speed-dip probe of
+        seeds 8000-8099; 3 of 8 depths agreeing at that yaw) turned the raw chain by 5.9 deg
+        in one partial step stated at 0.1 deg, while the 2-point yaw of 27 matches had it
+        right."""
         if pts is None:
             return False
         c = self.config.odometry

@@ -443,10 +443,10 @@ def test_a_wheeled_base_measures_the_start_from_rest_along_an_angled_wall():
 def test_a_partial_step_keeps_its_manhattan_yaw_only_past_the_same_veto(wobble, monkeypatch):
     """Mechanisms 1 and 2 together: a step whose 1-point translation fails keeps the
     Manhattan yaw (a partial step), so that yaw has to pass the 2-point veto a
-    direction-plus-point step's passes. It did not: on an unseen low-texture loop (seed
-    8007) a track that took a surface 6 deg off at a corner put 5.9 deg into the raw
-    heading in one partial step stated at 0.1 deg (3 of its 8 depths agreeing at that
-    yaw), while the 2-point yaw of 27 matches was right. Here every step is partial (the
+    direction-plus-point step's passes. It did not: on a low-texture loop (loop_s8007 of
+    the speed-dip probe of seeds 8000-8099) a track whose heading jumped 6.2 deg put 5.9
+    deg into the raw heading in one partial step stated at 0.1 deg (3 of its 8 depths
+    agreeing at that yaw), while the 2-point yaw of 27 matches was right. Here every step is partial (the
     1-point translation and the 2-point scale refused by their minimum counts) and every
     third frame the dominant frame's heading jumps by 3 deg: the jumps are vetoed, and the
     steps into and out of them keep the 2-point yaw. Measured: those steps err at most 0.27
