@@ -108,6 +108,8 @@ class PlotProcess:
 
     def close(self) -> None:
         self._conn.close()
+        if not self._submitted:
+            self._proc.kill()  # nothing to draw: no need to wait for its imports
         self._proc.join(timeout=5.0)
         if self._proc.is_alive():
             self._proc.kill()
