@@ -985,7 +985,9 @@ class PlanarOdometry:
         matches at a lower cost than the rotation's yaw, each with its best translation: on
         another seen hall (hall_s6305) a track vetoed the frame before came back 1.3 deg off
         with a 1-point translation refused (62 of 142 depths agreeing), and taken as the
-        step's yaw it turned the final heading from -0.08 to -1.07 deg."""
+        step's yaw it turned the final heading from -0.08 to -1.07 deg. (The veto a partial
+        step's Manhattan yaw passes, :meth:`_partial_vetoed`, runs first with the same gate
+        and cost test, so such a yaw rarely reaches this one.)"""
         var2 = two[1].covariance[0, 0]
         if mf_yaw[1] ** 2 >= var2:
             return two

@@ -248,7 +248,7 @@ class _WallYaw(PlanarOdometry):
     wall_yaw, wall_sigma = 0.0, math.radians(0.01)
 
     def _dpp(self, prev, frames, walls, pts, n_depth, yaw_prior, info):
-        return None, (self.wall_yaw, self.wall_sigma, self.wall_yaw)
+        return None, (self.wall_yaw, self.wall_sigma, self.wall_yaw, 0)
 
 
 def _step_at_wall_yaw(wall_yaw: float, wall_sigma: float, x1, x2, P1, P2):
@@ -295,7 +295,11 @@ def test_a_pure_rotation_gives_way_to_the_manhattan_yaw():
         step, info = _step_at_wall_yaw(wrong, math.radians(0.005), *_end_wall_matches(yaw, t, 55, seed))
         assert abs(math.degrees(step.pose[2] - truth[2])) < 0.2
         if info.two_point["status"] == "pure_rotation":
-            assert step.status == STATUS_2PT and "kept_over_manhattan_deg" in info.two_point
+            # refused by the veto a partial step's Manhattan yaw passes first (the same gate
+            # and cost test), or by the rotation's own test
+            refused = "kept_over_manhattan_deg" in info.two_point or (
+                info.yaw_check and info.yaw_check["vetoed"] and info.yaw_check.get("partial"))
+            assert step.status == STATUS_2PT and refused
 
 
 def _end_wall_depth(yaw: float, t: np.ndarray, z_wall: float, rng) -> np.ndarray:
