@@ -123,6 +123,30 @@ def test_two_point_fit_off_along_the_ambiguity_cannot_veto_the_walls(wobble, mon
     assert np.abs(heading).max() < 0.3
 
 
+def _jumping_run(wobble, monkeypatch, jump_deg: float, config: OdometryConfig):
+    """The wobble log's odometry (``config``) with the dominant local frame's heading jumped
+    by ``jump_deg`` every third frame from frame 5 (its walls' own headings unchanged):
+    ``(results, step errors, statuses, (N-1,) bool steps into a jump)``."""
+    K, mount, frames = wobble
+    real = odometry_module.group_walls
+    jump = {"on": False}
+
+    def jumping(walls, config=None):
+        out = real(walls, config)
+        if jump["on"] and out:
+            out[0].heading += math.radians(jump_deg)
+        return out
+
+    monkeypatch.setattr(odometry_module, "group_walls", jumping)
+    odo = PlanarOdometry(K, mount, FrontendConfig(odometry=config))
+    results = []
+    for k, f in enumerate(frames):
+        jump["on"] = k >= 5 and k % 3 == 0
+        results.append(odo.process(f.rgbd))
+    err, status = _step_errors(results, frames)
+    return results, err, status, np.array([k >= 5 and k % 3 == 0 for k in range(1, len(frames))])
+
+
 def test_a_group_heading_that_jumps_is_vetoed_by_the_two_point_yaw(wobble, monkeypatch):
     """Mechanism 1, a wrong association within the walls: when a wall about a degree off
     the others joins a local frame for a frame, the frame's heading jumps (0.7-1.4 deg on
@@ -135,24 +159,7 @@ def test_a_group_heading_that_jumps_is_vetoed_by_the_two_point_yaw(wobble, monke
     observation does not become the track's reference, so the step out of it is right as
     well: measured, steps into and out of jumps err at most 0.02 / 0.12 deg and 3 mm
     sideways; with the 2 deg gate the veto used to need, up to 1.1 deg and 29 mm."""
-    K, mount, frames = wobble
-    real = odometry_module.group_walls
-    jump = {"on": False}
-
-    def jumping(walls, config=None):
-        out = real(walls, config)
-        if jump["on"] and out:
-            out[0].heading += math.radians(1.0)
-        return out
-
-    monkeypatch.setattr(odometry_module, "group_walls", jumping)
-    odo = PlanarOdometry(K, mount, FrontendConfig(odometry=OdometryConfig(wall_yaw_check_sigmas=1e9)))
-    results = []
-    for k, f in enumerate(frames):
-        jump["on"] = k >= 5 and k % 3 == 0
-        results.append(odo.process(f.rgbd))
-    err, status = _step_errors(results, frames)
-    into = np.array([k >= 5 and k % 3 == 0 for k in range(1, len(frames))])
+    results, err, status, into = _jumping_run(wobble, monkeypatch, 1.0, OdometryConfig(wall_yaw_check_sigmas=1e9))
     out_of = np.roll(into, 1)
     vetoed = np.array([bool(r.diagnostics.yaw_check and r.diagnostics.yaw_check["vetoed"]) for r in results[1:]])
     assert vetoed[into].mean() >= 0.8
@@ -453,26 +460,9 @@ def test_a_partial_step_keeps_its_manhattan_yaw_only_past_the_same_veto(wobble, 
     deg (the 2-point yaw's own error on this fast weave, as on the other steps), the
     heading 0.28 deg at most; without the veto on partial steps they took the 3 deg at
     150 sigmas and the heading ended 17.8 deg off."""
-    K, mount, frames = wobble
-    real = odometry_module.group_walls
-    jump = {"on": False}
-
-    def jumping(walls, config=None):
-        out = real(walls, config)
-        if jump["on"] and out:
-            out[0].heading += math.radians(3.0)
-        return out
-
-    monkeypatch.setattr(odometry_module, "group_walls", jumping)
     partial_only = OdometryConfig(wall_yaw_check_sigmas=1e9, dpp_min_inliers=10 ** 6, min_scale_inliers=10 ** 6,
                                   weak_scale_inliers=10 ** 6)
-    odo = PlanarOdometry(K, mount, FrontendConfig(odometry=partial_only))
-    results = []
-    for k, f in enumerate(frames):
-        jump["on"] = k >= 5 and k % 3 == 0
-        results.append(odo.process(f.rgbd))
-    err, status = _step_errors(results, frames)
-    into = np.array([k >= 5 and k % 3 == 0 for k in range(1, len(frames))])
+    results, err, status, into = _jumping_run(wobble, monkeypatch, 3.0, partial_only)
     out_of = np.roll(into, 1)
     partial = np.array([s == STATUS_PARTIAL for s in status])
     assert partial.mean() >= 0.9
