@@ -641,8 +641,8 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
     files = {}
     plot_args = ((out / "trajectory.png", {"raw": raw_traj, "smoothed": smooth_traj,
                                            **{"wheel odometry": t for t in wheel.values()}}, gt),
-                 {"closures": _closure_segments(smooth_traj, closures)})
-    if config.output.plot and plotter is not None:
+                 {"closures": _closure_segments(smooth_traj, closures)}) if config.output.plot else None
+    if plot_args is not None and plotter is not None:
         plotter.submit(*plot_args[0], **plot_args[1])
     write_tum_trajectory(out / "raw.tum", raw_traj)
     write_tum_trajectory(out / "smoothed.tum", smooth_traj)
@@ -658,7 +658,7 @@ def _write_outputs(out: Path, config: RunConfig, stamps, raw, smoothed, T_base_c
                          transforms=transforms, lines=lines,
                          format=poses_format_for(log_format) if fmt == "auto" else fmt)
         files["poses_mcap"] = str(out / "poses.mcap")
-    if config.output.plot:
+    if plot_args is not None:
         if plotter is None or not plotter.wait():
             from planar_vo.plotting import plot_trajectories
 
