@@ -159,6 +159,10 @@ class FrameDiagnostics:
     #: the levelled translation (t_x, t_z) and its sigmas (m), whether it refuted the guess,
     #: or ``refused``: why the platform cannot make that motion ("beyond reach", "sideways")
     far: dict | None = None
+    #: a partial step's translation measured from the keyframe: its age, the motion's
+    #: inliers and depths, its disagreement with the chain's prediction in sigmas, and
+    #: ``refused`` when the platform cannot make it (PlanarOdometry._keyframe_translation)
+    partial_keyframe: dict | None = None
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
     #: the keyframe the step was measured against: frames since it, its corners still
     #: tracked, whether the step was re-measured against it (frontend/keyframe.py)
