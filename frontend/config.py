@@ -277,11 +277,14 @@ class OdometryConfig:
     #: scale) takes that yaw from the keyframe too: the step's yaw is the difference of two
     #: yaws measured from the keyframe, so that a per-step bias does not add up frame by frame.
     keyframe_partial_yaw: bool = True
-    #: A partial step whose yaw was measured and whose whole translation nothing else
-    #: measured takes it from the 2-point motion from K when two or more agreeing depths
-    #: give that motion's scale (``PlanarOdometry._keyframe_translation``). False: walls,
-    #: matches, the depth alignment and far corners only, else the guess.
-    keyframe_partial_translation: bool = True
+    #: True: a partial step whose yaw was measured and whose whole translation nothing
+    #: else measured takes it from the 2-point motion from K when two or more agreeing
+    #: depths give that motion's scale (``PlanarOdometry._keyframe_translation``). Off by
+    #: default: it took a seen hall that sped up from rest (hall_s8105) from 6.43 to 0.70 %
+    #: smoothed drift, but a slow tuning hall (hall_s3702, 30 Hz, 8 mm steps) from 0.29 to
+    #: 1.80 %, and the variant that kept that hall (one depth enough) let a textureless
+    #: start from rest copy a wrong velocity (docs/bench/changes_session45.md).
+    keyframe_partial_translation: bool = False
     keyframe_min_fraction: float = 0.5
     keyframe_max_baseline_m: float = 1.0
     keyframe_max_yaw_deg: float = 30.0

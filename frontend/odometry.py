@@ -329,6 +329,14 @@ def _refused_scale_yaw(motion, est) -> tuple[float, float] | None:
     return None
 
 
+def _kf_prior(kf_t) -> tuple[np.ndarray, np.ndarray]:
+    """The levelled ``(t_x, t_z)`` (2,) and (2, 2) covariance of a step measured from the
+    keyframe (``PlanarOdometry._keyframe_translation``), as a partial step's prior in the
+    guess's place: fused with a guess that lags a base speeding up, the steps fell short
+    of the motions from K."""
+    return np.asarray(kf_t[0][1], float)[[0, 2]], kf_t[1][1:, 1:]
+
+
 def _prior_cov(sigma_prior) -> np.ndarray:
     """(2, 2) covariance of a translation prior given as one sigma per axis (m) or as a
     (2, 2) covariance (m^2)."""
@@ -1169,48 +1177,47 @@ class PlanarOdometry:
                                                         wide=not turned, far=far)
         kf_t = None
         if turned and not self._translation_measured(counts):
-            # nothing measured the whole translation: the motion from K may, in the guess's
-            # place (fused with a guess that lags a base speeding up, the steps fell short
-            # of the motions from K)
+            # nothing measured the whole translation: the motion from K may
             kf_t = self._keyframe_translation(x_lev, P_lev, yaw, sigma_yaw, t, sb, mount_se2, info)
             if kf_t is not None:
-                prior, prior_cov = np.array([kf_t[0][1][0], kf_t[0][1][2]]), kf_t[1][1:, 1:]
-                t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, yaw_ff, prior, prior_cov, pts,
+                t_xz, cov_t, counts = self._partial_translation(walls1, walls2, yaw, yaw_ff, *_kf_prior(kf_t), pts,
                                                                 info, far=far, dense=counts["dense"] > 0)
         counts["keyframe"] = int(kf_t is not None)
         if mf_yaw is None and not any(counts.values()):
             return self._bridge(yaw, t, sb, s_theta, how, mount_se2, info)
-        if mf_yaw is None:
-            self._since_yaw += 1  # the yaw is still the guess
+        self._since_yaw += int(mf_yaw is None)  # the yaw is still the guess
         t = np.array([t_xz[0], 0.0, t_xz[1]])
-        cov = np.zeros((3, 3))
-        cov[0, 0] = sigma_yaw ** 2
-        # No floor on top: walls (``wall_min_sigma_m``), 3-D matches, the depth alignment and
-        # the guess state their own errors. With a 1 mm floor along the track, partial steps
-        # measured by two walls stated 1.49 mm for 0.69 mm errors (two tuning logs); over the
-        # tuning seeds 3700-3707 the forward normalised RMS was 0.54, without it 0.71
-        cov[1:, 1:] = cov_t
+        # No floor on top: every source states its own errors (with a 1 mm floor along the
+        # track, two walls' steps stated 1.49 mm for 0.69 mm errors on two tuning logs)
+        cov = np.block([[np.array([[sigma_yaw ** 2]]), np.zeros((1, 2))], [np.zeros((2, 1)), cov_t]])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         # the depth alignment measures along the guess's long axis; on a wheeled base the
         # other is the chord of the turn, so it measures the whole translation
         measured = self._translation_measured(counts)
         info.partial = {"prior": how, **counts, "measured": measured, "yaw": "measured" if mf_yaw else "guess"}
         self._kf_guessed = ((float(yaw), np.asarray(t, float)), cov)
-        # what of the step's information is the guess (its prior on the translation, and the
-        # yaw when none was measured): the back-end's motion prior states the same constant
-        # velocity and takes its place
-        Ji = np.linalg.inv(lev_to_base_jacobian(yaw, t, mount_se2))
-        guess = np.zeros((3, 3))
-        if kf_t is None:
-            guess[1:, 1:] = np.linalg.inv(_prior_cov(prior_cov))
-        if mf_yaw is None:
-            guess[0, 0] = 1.0 / sigma_yaw ** 2
+        guess = self._guess_information(yaw, t, None if kf_t is not None else prior_cov,
+                                        sigma_yaw if mf_yaw is None else None, mount_se2)
         self._partial_guess(float(yaw_ff), t, cov, how, measured)
         if counts["keyframe"]:
-            self._keyframe_guess(kf_t[3], kf_t[4])
+            self._keyframe_guess(kf_t, (float(yaw), t))
         return (Step(pose, np.linalg.inv(cov_b), STATUS_PARTIAL, counts["walls"], keyframe_yaw=self._yaw_link(mount_se2),
-                     guess_information=Ji.T @ guess @ Ji, guess_copies=self._since_t,
+                     guess_information=guess, guess_copies=self._since_t,
                      translation_measured=counts["far"] + counts["keyframe"] > 0), (yaw, t, sigma_yaw ** 2))
+
+    @staticmethod
+    def _guess_information(yaw: float, t: np.ndarray, prior_cov, sigma_yaw: float | None, mount_se2) -> np.ndarray:
+        """(3, 3) base_link information of what of a partial step is the guess: its prior on
+        the translation (``prior_cov``, None when something took the guess's place), and
+        the yaw when none was measured (``sigma_yaw``, else None). The back-end's motion
+        prior states the same constant velocity and takes its place."""
+        Ji = np.linalg.inv(lev_to_base_jacobian(yaw, t, mount_se2))
+        guess = np.zeros((3, 3))
+        if prior_cov is not None:
+            guess[1:, 1:] = np.linalg.inv(_prior_cov(prior_cov))
+        if sigma_yaw is not None:
+            guess[0, 0] = 1.0 / sigma_yaw ** 2
+        return Ji.T @ guess @ Ji
 
     def _translation_measured(self, counts: dict) -> bool:
         """True when a partial step's sources (``counts`` of :meth:`_partial_translation`,
@@ -1278,17 +1285,25 @@ class PlanarOdometry:
             return None
         return step, cov, 1, m, est.covariance
 
-    def _keyframe_guess(self, m: tuple[float, np.ndarray], cov_m: np.ndarray) -> None:
-        """After a partial step measured from K (:meth:`_keyframe_translation`): K's motion
-        is the one measured, ``m`` (levelled ``(yaw, t)``, covariance ``cov_m``), committed
-        as such, and the next guesses copy the velocity of two motions from K
-        (:meth:`KeyframeTracker.velocity`; the first one since K: the motion over the frames
-        since K), whose error does not grow with the steps between them; not the step's own
-        translation, which errs by this frame's depths and the last one's alike, nor the
-        chain's motion: where the guesses since K were unknown (a start from rest guessed
-        at zero, 1 m sigma) the step took other sources' 382 mm, and committed and copied as
-        the velocity, every guess after it was 200 mm off (tests/test_drift_free_yaw.py)."""
-        c = self.config.odometry
+    def _keyframe_guess(self, kf_t, step: tuple[float, np.ndarray]) -> None:
+        """After a partial step ``step`` (levelled ``(yaw, t)``) whose translation was measured
+        from K (``kf_t``, :meth:`_keyframe_translation`): K holds the motion to this frame as
+        measured, and the next guesses copy the velocity of two motions from K
+        (:meth:`KeyframeTracker.velocity`; the first since K: the motion over the frames
+        since K), whose error does not grow with the steps between them (not the step's own
+        translation, which errs by this frame's depths and the last one's alike).
+
+        That motion is the chain's (K's motion composed with the step, which walls and
+        matches may have moved off the motion from K: the next step from K takes it back;
+        holding the motion from K lost it every step, a slow tuning hall's raw chain 0.26 ->
+        0.74 %), unless the guesses since K are less sure than the motion from K: then the
+        motion from K (with the guesses unknown, a textureless start from rest guessed at
+        zero with a 1 m sigma, the step took another source's 382 mm and every guess after
+        it copied a velocity 200 mm off, tests/test_drift_free_yaw.py)."""
+        c, kt = self.config.odometry, self._keyframes
+        m, cov_m = kf_t[3], kf_t[4]
+        if np.linalg.eigvalsh(kt.kf.guess_cov[1:, 1:])[-1] <= np.linalg.eigvalsh(2.0 * cov_m[1:, 1:])[-1]:
+            m = kt.predicted(step)
         self._kf_measured, self._kf_guessed = (m, cov_m), None
         v, n = self._keyframes.velocity(m, c.velocity_window)
         self._last_t_sigma = math.sqrt(2.0 * float(np.max(np.diag(cov_m[1:, 1:]))) + c.min_sigma_xy ** 2) / n
