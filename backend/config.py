@@ -85,7 +85,7 @@ class BackendConfig:
     motion_prior_gap_baseline_s: float = 0.5
     #: The same for the turn rate (deg/s^2): a heading weaving with a 1 m period at 0.5 m/s
     #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
-    #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2.
+    #: up to 10 x 2 pi 0.5 / 1 ~ 31 deg/s^2 (the front-end's bridged guess uses the same 30).
     motion_prior_yaw_accel_deg: float = 30.0
     #: Where the motion prior applies, what of a step's information the front-end's own
     #: constant-velocity guess contributed (``Step.guess_information``) is kept:

@@ -357,18 +357,7 @@ class OdometryConfig:
     #: sigma = accel * k * dt^2 after k unmeasured frames of dt seconds (indoor robots),
     #: capped at the sigmas below, which also apply when no motion was ever measured.
     bridge_accel_xy: float = 0.5          # m/s^2
-    #: A base's turn rate is not held for long: it is correlated over about a second and
-    #: wanders around zero. A step whose yaw nothing measured guesses the last measured turn
-    #: rate decaying with this time constant (s), an Ornstein-Uhlenbeck turn rate; its sigma
-    #: grows towards the RMS turn rate, measured from the run's own steps (starting from
-    #: ``bridge_turn_rate_rms_deg``, deg/s). On the tuning seeds' ground truth (3700-3707)
-    #: the turn rate's autocorrelation at 1 s was 0.04-0.89 (median ~0.5) and its RMS
-    #: 0.5-26 deg/s; 30-step gaps cut into the simulator's paths (seeds 0-9, hall, straight,
-    #: loop) ended 10.6 deg RMS off the true heading at 3 s, 11.7 at 1.5 s, 13.7 at 1 s and
-    #: 15.5 with the rate held. A turn rate held for hundreds of guessed steps turned a
-    #: textureless hall's heading 38 deg (hall_s8107, seen set 8100-8107).
-    bridge_turn_tau_s: float = 3.0
-    bridge_turn_rate_rms_deg: float = 15.0
+    bridge_accel_theta_deg: float = 30.0  # deg/s^2
     bridge_sigma_xy: float = 1.0     # metres
     #: The guessed velocity's drift stays within the platform's top speed (m/s; indoor
     #: bases drive at up to ~1 m/s, the randomized scenes at 0.2-0.8).
@@ -406,7 +395,6 @@ class OdometryConfig:
                   velocity_window=self.velocity_window, wall_gate_sigmas=self.wall_gate_sigmas,
                   two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m,
                   two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
-                  bridge_turn_tau_s=self.bridge_turn_tau_s, bridge_turn_rate_rms_deg=self.bridge_turn_rate_rms_deg,
                   two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg,
                   two_point_shared_px=self.two_point_shared_px,
                   keyframe_max_baseline_m=self.keyframe_max_baseline_m, keyframe_max_yaw_deg=self.keyframe_max_yaw_deg,

@@ -61,9 +61,6 @@ from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS
                                       WallObservation)
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
-#: seconds of measured steps whose turn rates give the mean square a guessed one grows to
-_TURN_WINDOW_S = 10.0
-
 
 @dataclass
 class _Prev:
@@ -453,9 +450,6 @@ class PlanarOdometry:
         # the uncertainty of a constant-velocity guess (see _bridge_sigmas)
         self._since_t = 0
         self._since_yaw = 0
-        # mean square turn rate (rad/s)^2 of the measured steps, over about turn_window_s
-        # (_remember_turn): where the guessed turn rate's sigma grows to (_bridge_sigmas)
-        self._turn_ms = math.radians(c.odometry.bridge_turn_rate_rms_deg) ** 2
         self._last_t_sigma = 0.0  # m, the guessed translation's own sigma (levelled, larger axis)
         self._last_stamp: float | None = None
         self._dt = 0.1
@@ -1156,7 +1150,6 @@ class PlanarOdometry:
         c = self.config.odometry
         cv = c.bridge == "constant_velocity" and self._last_motion is not None
         (yaw, t), how = (self._last_motion, "constant_velocity") if cv else ((0.0, np.zeros(3)), "zero")
-        yaw *= self._turn_decay()  # the turn rate relaxes towards zero (_bridge_sigmas)
         self._since_t += 1
         sb, s_theta = self._bridge_sigmas(how == "zero")
         far, sb_t = self._far_resection(x_lev, yaw, t, mf_yaw, sb, mount_se2, info)
@@ -1166,7 +1159,6 @@ class PlanarOdometry:
             mf_yaw = self._depth_yaw(yaw, t, sb, mount_se2, info)
         if mf_yaw is not None:
             self._since_yaw = 0
-            self._remember_turn(mf_yaw[2])
             yaw, sigma_yaw, yaw_ff = mf_yaw[0], max(mf_yaw[1], math.radians(c.min_sigma_theta_deg)), mf_yaw[2]
         else:
             sigma_yaw, yaw_ff = s_theta, yaw
@@ -1441,8 +1433,6 @@ class PlanarOdometry:
             t = np.array([prior[0], 0.0, prior[1]])
         pose, cov_b = lev_motion_to_base_step(yaw, t, cov, mount_se2)
         info.bridge = how
-        if how == "constant_velocity":
-            self._last_motion = (float(yaw), self._last_motion[1])  # the next guess decays from here
         self._kf_guessed = ((yaw, np.asarray(t, float)), cov)
         information = np.linalg.inv(cov_b)
         return (Step(pose, information, STATUS_BRIDGED, 0, guess_information=information, guess_copies=self._since_t),
@@ -1635,14 +1625,12 @@ class PlanarOdometry:
     def _bridge_sigmas(self, nothing_known: bool) -> tuple[float, float]:
         """Sigmas (m, rad) of a constant-velocity guess for the step's translation and yaw.
 
-        The translation guess errs by the velocity change since the last measurement: with
-        accelerations up to ``bridge_accel_xy`` over ``k`` frame intervals ``dt``, by
-        ``a k dt^2`` per step -- a few millimetres at first, growing while nothing is
-        measured (at most ``bridge_max_speed`` times the frame interval), capped at
-        ``bridge_sigma_xy``. The yaw guess is a turn rate relaxing towards zero
-        (``bridge_turn_tau_s``), whose sigma grows towards the run's RMS turn rate times
-        ``dt`` (:meth:`_remember_turn`); at most ``bridge_sigma_theta_deg``. With no motion
-        ever measured both are the caps. The
+        The guess errs by the velocity change since the last measurement: with
+        accelerations up to ``bridge_accel_xy`` / ``bridge_accel_theta_deg`` over ``k`` frame
+        intervals ``dt``, by ``a k dt^2`` per step -- a few millimetres and tenths of a
+        degree at first, growing while nothing is measured (the translation's growth at most
+        ``bridge_max_speed`` times the frame interval), capped at ``bridge_sigma_xy``
+        / ``bridge_sigma_theta_deg`` (also used when no motion was ever measured). The
         translation's rate of change is measured (:meth:`_velocity_change`) when it is
         smaller, and it also errs by the copied steps' own error (their sigma).
 
@@ -1661,39 +1649,9 @@ class PlanarOdometry:
         # 27 cm off passed the gate as a measurement of a 13 mm step)
         drift = min(self._velocity_change(c.bridge_accel_xy * dt2) * self._since_t, c.bridge_max_speed * self._dt)
         s_xy = min(max(math.hypot(drift, self._last_t_sigma), c.min_sigma_xy), cap_xy)
-        return s_xy, min(max(self._guessed_turn_sigma(self._since_yaw + 1), math.radians(c.min_sigma_theta_deg)),
-                         cap_th)
-
-    def _guessed_turn_sigma(self, k: int) -> float:
-        """Sigma (rad) of the k-th guessed yaw in a row. The turn rate k steps after the last
-        measured one (an Ornstein-Uhlenbeck process of time constant bridge_turn_tau_s) has
-        its mean decayed by r^k (_turn_decay) and a variance grown to the mean square turn
-        rate as 1 - r^(2k): a per-step sigma s_k. Within a gap these errors are one error
-        (the turn rate drifts for seconds, the gap's steps err alike), but each step is a
-        factor of its own in the graph: the k-th states ``sqrt(s_k (2 S_{k-1} + s_k))``,
-        ``S`` the sum of the sigmas before it, so that the gap's heading has the variance
-        ``S_k^2`` of errors all of one sign (as backend._guess_weighted does for the
-        translation). Stated independently, the steps of a turn the guess relaxed too soon
-        erred 1.5 deg each at 1.3 deg, 20 deg in all, and the graph kept them (a seen
-        low-texture hall, hall_s7700)."""
-        r2 = self._turn_decay() ** (2 * np.arange(1, k + 1))
-        s = self._dt * np.sqrt(self._turn_ms * (1.0 - r2))
-        return math.sqrt(float(s[-1] * (2.0 * s[:-1].sum() + s[-1])))
-
-    def _turn_decay(self) -> float:
-        """Factor by which the guessed turn rate relaxes towards zero per frame interval:
-        ``exp(-dt / bridge_turn_tau_s)``. A turn rate held through a long gap turns the
-        guessed heading without bound (a textureless seen hall, hall_s8107: 295 steps of
-        guessed yaw copying rates of up to 1.6 deg a step, 38 deg at the end)."""
-        return math.exp(-self._dt / self.config.odometry.bridge_turn_tau_s)
-
-    def _remember_turn(self, yaw: float) -> None:
-        """Fold a measured step's levelled ``yaw`` (rad) into the mean square turn rate,
-        exponentially weighted over ``_TURN_WINDOW_S``: the spread a guessed turn rate
-        grows to (a straight corridor's base weaves at 1-7 deg/s RMS, a loop's at 10-26 on
-        the tuning seeds' ground truth)."""
-        a = min(1.0, self._dt / _TURN_WINDOW_S)
-        self._turn_ms += a * ((yaw / self._dt) ** 2 - self._turn_ms)
+        s_th = min(max(math.radians(c.bridge_accel_theta_deg) * dt2 * (self._since_yaw + 1),
+                       math.radians(c.min_sigma_theta_deg)), cap_th)
+        return s_xy, s_th
 
     def _velocity_change(self, cap: float) -> float:
         """Metres per frame by which the translation per frame changes: the RMS of the
@@ -1831,7 +1789,6 @@ class PlanarOdometry:
             self._remember_translation(v, self._last_t_sigma ** 2)
             self._last_motion = (float(yaw), v)
         self._since_t = self._since_yaw = 0
-        self._remember_turn(yaw)
         yaw_var = float(cov[0, 0]) + math.radians(c.min_sigma_theta_deg) ** 2
         return (Step(pose, np.linalg.inv(cov_b), status, int(n_in), keyframe),
                 (float(yaw), np.asarray(t, float), yaw_var))
