@@ -790,6 +790,16 @@ class PlanarOdometry:
         m, cov_k, aligned = self._aligned(m, est.covariance, kf, info, "keyframe")
         return m, cov_k, chained, aligned
 
+    def _two_point_from_keyframe(self, x_lev, P_lev, mount_se2) -> tuple:
+        """``(x1, motion, est)``: the 2-point metric motion from the keyframe K to this frame
+        over K's corners still tracked (``x1`` their levelled coordinates in K), with the
+        image noise of tracks as old as K; ``(x1, None, None)`` with fewer than two."""
+        x1, x2, P1, P2 = self._keyframes.correspondences(x_lev, P_lev)
+        if len(x1) < 2:
+            return x1, None, None
+        return (x1,) + tuple(estimate_planar_motion_2pt_metric(
+            x1, x2, P1, P2, self._keyframe_two_point_options(mount_se2, self._keyframes.kf.age)))
+
     def _keyframe_two_point_options(self, mount_se2, age: int):
         """The 2-point options for a motion from a keyframe ``age`` frames back: a corner
         tracked frame by frame (KLT) wanders from where it was first seen by a random walk,
@@ -1027,11 +1037,9 @@ class PlanarOdometry:
         c, kt = self.config.odometry, self._keyframes
         if not (c.keyframes and c.keyframe_partial_yaw and kt.active()) or kt.kf.walls:
             return weak
-        x1, x2, P1, P2 = kt.correspondences(x_lev, P_lev)
-        if len(x1) < 2:
+        x1, motion, est = self._two_point_from_keyframe(x_lev, P_lev, mount_se2)
+        if motion is None and est is None:
             return weak
-        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._keyframe_two_point_options(
-            mount_se2, kt.kf.age))
         yaw = None
         if (motion is not None and est.covariance is not None and est.covariance[0, 0] > 0
                 and est.num_inliers >= c.yaw_only_min_inliers and est.num_inliers >= c.min_inlier_ratio * len(x1)):
@@ -1242,11 +1250,7 @@ class PlanarOdometry:
         c, kt = self.config.odometry, self._keyframes
         if not (c.keyframes and c.keyframe_partial_translation and kt.active()) or x_lev is None or P_lev is None:
             return None
-        x1, x2, P1, P2 = kt.correspondences(x_lev, P_lev)
-        if len(x1) < 2:
-            return None
-        motion, est = estimate_planar_motion_2pt_metric(x1, x2, P1, P2, self._keyframe_two_point_options(
-            mount_se2, kt.kf.age))
+        x1, motion, est = self._two_point_from_keyframe(x_lev, P_lev, mount_se2)
         # two depths at least, that agree: one alone, on a depth edge of a textureless
         # corridor, put its motion 372 mm off at a stated 9 mm, and the velocity copied
         # from it every guess after it 200 mm (tests/test_drift_free_yaw.py)
