@@ -160,7 +160,7 @@ class FrameDiagnostics:
     #: or ``refused``: why the platform cannot make that motion ("beyond reach", "sideways")
     far: dict | None = None
     #: a partial step's translation measured from the keyframe: its age, the motion's
-    #: inliers and depths, its disagreement with the chain's prediction in sigmas, and
+    #: inliers and depths, its yaw's disagreement with the chain's in sigmas, and
     #: ``refused`` when the platform cannot make it (PlanarOdometry._keyframe_translation)
     partial_keyframe: dict | None = None
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"

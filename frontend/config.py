@@ -280,7 +280,7 @@ class OdometryConfig:
     #: True: a partial step whose yaw was measured and whose whole translation nothing
     #: else measured takes it from the 2-point motion from K when two or more agreeing
     #: depths give that motion's scale (``PlanarOdometry._keyframe_translation``). Off by
-    #: default: it took a seen hall that sped up from rest (hall_s8105) from 6.43 to 0.70 %
+    #: default: it took a seen hall that sped up from rest (hall_s8105) from 6.43 to 0.74 %
     #: smoothed drift, but a slow tuning hall (hall_s3702, 30 Hz, 8 mm steps) from 0.29 to
     #: 1.80 %, and the variant that kept that hall (one depth enough) let a textureless
     #: start from rest copy a wrong velocity (docs/bench/changes_session45.md).

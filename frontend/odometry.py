@@ -1231,7 +1231,7 @@ class PlanarOdometry:
     def _keyframe_translation(self, x_lev, P_lev, yaw: float, sigma_yaw: float, t_guess: np.ndarray, sb: float,
                               mount_se2, info):
         """A partial step's translation measured from the keyframe K: ``(step (yaw, t),
-        cov (3, 3), 1, motion K -> here, its cov)`` or None (the step's covariance states
+        cov (3, 3), motion K -> here, its cov)`` or None (the step's covariance states
         two motions' errors and what the guesses since K got wrong, which it takes back).
         Its ``yaw`` (rad, levelled, at sigma ``sigma_yaw``) is measured (walls or the
         2-point method), ``t_guess`` (3,) the guess at sigma ``sb``.
@@ -1279,7 +1279,7 @@ class PlanarOdometry:
         if self._impossible_motion(step[0], step[1], cov, mount_se2):
             info.partial_keyframe["refused"] = True
             return None
-        return step, cov, 1, m, est.covariance
+        return step, cov, m, est.covariance
 
     def _keyframe_guess(self, kf_t, step: tuple[float, np.ndarray]) -> None:
         """After a partial step ``step`` (levelled ``(yaw, t)``) whose translation was measured
@@ -1297,7 +1297,7 @@ class PlanarOdometry:
         zero with a 1 m sigma, the step took another source's 382 mm and every guess after
         it copied a velocity 200 mm off, tests/test_drift_free_yaw.py)."""
         c, kt = self.config.odometry, self._keyframes
-        m, cov_m = kf_t[3], kf_t[4]
+        m, cov_m = kf_t[2], kf_t[3]
         if np.linalg.eigvalsh(kt.kf.guess_cov[1:, 1:])[-1] <= np.linalg.eigvalsh(2.0 * cov_m[1:, 1:])[-1]:
             m = kt.predicted(step)
         self._kf_measured, self._kf_guessed = (m, cov_m), None

@@ -256,9 +256,10 @@ def test_partial_steps_take_their_translation_from_the_keyframe():
     guess, zero, and the chain stands still (1.29 m short of 1.29 m; the default: the option
     is off, docs/bench/changes_session45.md). From the keyframe the
     same two corners measure motions of tens of centimetres, each step the difference of
-    two: 2.5-12 mm off the end point on seeds 0-2, with 37-45 % of the steps so measured
+    two: 0.4-11 mm off the end point on seeds 0-2, with 37-45 % of the steps so measured
     (the others copy the velocity of two motions from K), and the steps state their forward
-    errors (each stating the errors of two motions from K: normalised RMS 0.3-0.6)."""
+    errors (normalised RMS 0.43 over the three: each step states the errors of two motions
+    from K, which consecutive steps share)."""
     m = g.mount_se2(T_BASE_CAM)
     poses = []
     e_off, steps = _drive(True, 0, n=120, step_m=0.013, walk_px=0.2, n_near=2, ramp=40, poses=poses)
