@@ -204,6 +204,15 @@ class OdometryConfig:
     #: not see the translation). 0 turns it off (holonomic bases).
     lateral_slip: float = 0.03
     lateral_floor_m: float = 0.0005
+    #: True: a 2-point step whose images the yaw alone explains (a pure rotation) is fitted
+    #: on the wheeled base's heading itself (``estimators._wheeled_refine``) instead of
+    #: without the sideways prior. Far corners on one side make a forward step's parallax
+    #: look like a turn: on a seen hall (hall_s8203) such steps erred +0.05 deg each for 60
+    #: steps, and the option took it from 1.98 to 0.33 % smoothed drift. Off by default: on
+    #: the tuning halls three of eight drifted further along the path (hall_s3704 0.74 ->
+    #: 1.16 %, hall_s3702 0.29 -> 0.53 %, hall_s3707 0.90 -> 1.06 %), none less
+    #: (docs/bench/changes_session46.md). Needs ``lateral_slip`` > 0.
+    pure_rotation_on_heading: bool = False
     #: Direction-plus-point needs only the translation from the matches (the yaw comes from
     #: the walls), so a few agreeing 3-D matches suffice; its covariance grows as they fall.
     dpp_min_inliers: int = 6

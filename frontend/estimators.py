@@ -152,6 +152,12 @@ class MetricTwoPointOptions(TwoPointOptions):
     mount_se2: tuple[float, float, float] | None = None
     lateral_slip: float = 0.0
     lateral_floor_m: float = 0.001
+    #: With the wheeled prior: a step the images take for a pure rotation is fitted on the
+    #: chord of its heading change itself (:func:`_wheeled_refine`; the slip enters the
+    #: covariance only) -- for one frame interval (a motion over several frames, whose
+    #: heading weaved, is no single arc). False: a pure rotation goes without the prior.
+    #: Fits whose direction the images see take it as a soft row either way.
+    follow_heading: bool = False
 
     def __post_init__(self):
         super().__post_init__()
@@ -738,6 +744,73 @@ def _base_lateral(p: np.ndarray, m_base_lev: np.ndarray) -> float:
     return y - x * math.tan(0.5 * th)
 
 
+def _arc_motion(q: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
+    """The levelled motion ``(yaw, t_x, t_z)`` (3,) of a base_link step that follows its
+    heading: ``q = (yaw, rho)``, ``rho`` metres along the chord of the heading change (a
+    constant-curvature arc; negative backwards). Inverse of the mapping in
+    :func:`_base_lateral`: ``b = R_m p + (I - R_th) m`` solved for the levelled step ``p``."""
+    th, rho = float(q[0]), float(q[1])
+    c, s = math.cos(th), math.sin(th)
+    mx, my, mpsi = float(m_base_lev[0]), float(m_base_lev[1]), float(m_base_lev[2])
+    qx = rho * math.cos(0.5 * th) - (1.0 - c) * mx - s * my
+    qy = rho * math.sin(0.5 * th) + s * mx - (1.0 - c) * my
+    cm, sm = math.cos(mpsi), math.sin(mpsi)
+    px, py = cm * qx + sm * qy, -sm * qx + cm * qy
+    return np.array([th, -s * px + c * py, -c * px - s * py])
+
+
+def _wheeled_refine(fun, p0: np.ndarray, m_base_lev: np.ndarray, max_iter: int) -> tuple[np.ndarray, int]:
+    """``(p (3,), iterations)``: ``fun`` (:func:`_metric_residuals` of ``p = (yaw, t_x,
+    t_z)``) minimised over the steps that follow their heading (:func:`_arc_motion`), from
+    ``p0``'s yaw and its length along the chord."""
+    b = _lev_step_to_base(p0, m_base_lev)
+    rho0 = b[0] * math.cos(0.5 * p0[0]) + b[1] * math.sin(0.5 * p0[0])
+
+    def g(q, jac):
+        p = _arc_motion(q, m_base_lev)
+        e, J = fun(p, jac)
+        if not jac:
+            return e, None
+        h, G = 1e-7, np.empty((3, 2))
+        for k in range(2):
+            d = np.zeros(2)
+            d[k] = h
+            G[:, k] = (_arc_motion(q + d, m_base_lev) - _arc_motion(q - d, m_base_lev)) / (2 * h)
+        return e, J @ G
+    q, _, its, _ = _levenberg_marquardt(g, np.array([p0[0], rho0]), max_iter)
+    return _arc_motion(q, m_base_lev), its
+
+
+def _wheeled_image_yaw(m: _Matches, w_img: float, p: np.ndarray, m_base_lev: np.ndarray, max_iter: int) -> float:
+    """The yaw (rad) the image matches ``m`` alone give a step that follows its heading,
+    at the length of the fitted ``p = (yaw, t_x, t_z)`` (which enters only through the
+    camera's lever arm): what a few depths may have bent the joint fit away from."""
+    b = _lev_step_to_base(p, m_base_lev)
+    rho = b[0] * math.cos(0.5 * p[0]) + b[1] * math.sin(0.5 * p[0])
+    none = np.zeros((0, 3))
+
+    def g(q, jac):
+        e, J = _metric_residuals(m, w_img, none, none, np.zeros(0), _arc_motion((q[0], rho), m_base_lev), jac)
+        if not jac:
+            return e, None
+        h = 1e-7
+        d = (_arc_motion((q[0] + h, rho), m_base_lev) - _arc_motion((q[0] - h, rho), m_base_lev)) / (2 * h)
+        return e, J @ d[:, None]
+    q, _, _, _ = _levenberg_marquardt(g, np.array([p[0]]), max_iter)
+    return float(q[0])
+
+
+def _lev_step_to_base(p: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
+    """The base_link step ``(x, y)`` (2,) of the levelled motion ``p = (yaw, t_x, t_z)``
+    (the mapping of :func:`_base_lateral`)."""
+    th, tx, tz = float(p[0]), float(p[1]), float(p[2])
+    c, s = math.cos(th), math.sin(th)
+    px, py = -(s * tx + c * tz), c * tx - s * tz
+    mx, my, mpsi = float(m_base_lev[0]), float(m_base_lev[1]), float(m_base_lev[2])
+    cm, sm = math.cos(mpsi), math.sin(mpsi)
+    return np.array([cm * px - sm * py + (1.0 - c) * mx + s * my, sm * px + cm * py - s * mx + (1.0 - c) * my])
+
+
 def _with_lateral_prior(fun, m_base_lev: np.ndarray, sigma: float):
     """``fun`` (:func:`_metric_residuals`) with one more row: :func:`_base_lateral` / sigma."""
     def g(p, jac):
@@ -849,11 +922,15 @@ def estimate_planar_motion_2pt_metric(x1, x2, P1, P2, options: MetricTwoPointOpt
     # check that a few depths did not bend it)
     info.extra["epipolar_yaw"] = float(theta)
     fit = _metric_fit(theta, t_dir, info, x1, x2, P1, P2, opt)
-    if fit is not None and fit[2] and info.status == OK and _collapsed(fit[0], fit[1]):
+    on_heading = opt.follow_heading and info.status == PURE_ROTATION  # fitted by _wheeled_refine
+    if fit is not None and fit[2] and (info.status == OK or on_heading) and _collapsed(fit[0], fit[1], on_heading):
         # The images' direction and the wheeled base's heading disagree, and the fit met
         # them at t ~ 0, pinned there by both (on a held-out hall 17 mm steps measured as
         # 0 +- 1.5 mm, 2-point status ok between pure rotations): a pure rotation the
-        # direction test let through, its yaw bent by the sideways direction.
+        # direction test let through, its yaw bent by the sideways direction. Fitted on the
+        # heading, a step near t = 0 moves the camera sideways by the lever arm alone, along
+        # the epipolar lines of the rotation, which then no longer see the yaw (8 mm steps
+        # of a 30 Hz tuning hall so fitted at ~1 mm erred 0.15-0.18 deg).
         info.extra["direction_collapsed_m"] = float(math.hypot(fit[1][0], fit[1][2]))
         return _rotation_then_depths(theta, info, x1, x2, P1, P2, opt)
     if fit is None:
@@ -931,24 +1008,48 @@ def _metric_fit(theta: float, t_dir, info: EstimateInfo, x1, x2, P1, P2, opt: Me
     # Sampson terms stay well defined for small non-zero t (they are scale invariant)
     sub = _Matches(x1[inl], x2[inl])
     fun = lambda p, jac: _metric_residuals(sub, w_img, Q1, Q2, inv_sig, p, jac)  # noqa: E731
-    n_prior = 0
-    if opt.lateral_slip > 0 and opt.mount_se2 is not None and info.status == OK:
-        # Far features at one depth leave a valley in which yaw and sideways translation
-        # trade off (dt_x = -Z dyaw): image rows and depth rows alike. A wheeled base's step
-        # follows its heading, which picks the valley's true end (without it, on a low-texture
-        # tuning hall: yaw errors of 0.28-0.55 deg, the translation 28-63 deg off the heading).
-        # Not for a pure rotation: its images do not see the translation, whose scale-free
-        # image rows then let the prior shrink it (22 of 23 mm lost on the same hall).
-        sigma = opt.lateral_floor_m + opt.lateral_slip * math.hypot(t0[0], t0[2])
-        fun = _with_lateral_prior(fun, np.asarray(opt.mount_se2, dtype=float), sigma)
-        n_prior = 1
-        info.extra["lateral_prior_m"] = sigma
-    p, cost, its, J = _levenberg_marquardt(fun, np.array([theta, t0[0], t0[2]]), opt.max_refine_iterations)
+    p, its, fun, n_prior = _refine_metric(fun, np.array([theta, t0[0], t0[2]]), t0, info, sub, w_img, opt)
+    e, J = fun(p, True)
     info.refine_iterations += its
-    info.cost = cost
-    info.covariance = _metric_covariance(J, fun(p, False)[0], len(Q1), n_prior, p)
+    info.cost = float(e @ e)
+    info.covariance = _metric_covariance(J, e, len(Q1), n_prior, p)
     info.scale_inliers = scale_inl
     return p, t0, n_prior > 0
+
+
+def _refine_metric(fun, p0: np.ndarray, t0: np.ndarray, info: EstimateInfo, sub: _Matches, w_img: float,
+                   opt: MetricTwoPointOptions):
+    """The joint refinement of :func:`_metric_fit` from ``p0 = (yaw, t_x, t_z)``: ``(p (3,),
+    iterations, the residual function with the wheeled prior's row if any, rows of prior)``."""
+    if opt.lateral_slip <= 0 or opt.mount_se2 is None or not (opt.follow_heading or info.status == OK):
+        p, _, its, _ = _levenberg_marquardt(fun, p0, opt.max_refine_iterations)
+        return p, its, fun, 0
+    # Far features at one depth leave a valley in which yaw and sideways translation trade
+    # off (dt_x = -Z dyaw): image rows and depth rows alike. A wheeled base's step follows
+    # its heading, which picks the valley's true end (without it, on a low-texture tuning
+    # hall: yaw errors of 0.28-0.55 deg, the translation 28-63 deg off the heading).
+    m = np.asarray(opt.mount_se2, dtype=float)
+    if opt.follow_heading and info.status == PURE_ROTATION:
+        # A pure rotation over one frame interval: fitted on the heading itself
+        # (:func:`_wheeled_refine`), the slip in the covariance only. A soft prior let its
+        # scale-free image rows shrink the step (22 of 23 mm lost on a tuning hall), so pure
+        # rotations went without one, and where their images took a forward step's radial
+        # parallax for a rotation (corners on one side) the yaw erred by +0.05 deg a step
+        # for 60 steps of a held-out hall (seed 8203; on the heading 0.01). Fits whose
+        # direction the images see keep the soft row below (fitted on the heading too, four
+        # of eight tuning halls drifted further: hall_s3704 0.74 -> 1.29 %).
+        p, its = _wheeled_refine(fun, p0, m, opt.max_refine_iterations)
+        # the images' own yaw under the same model, for the callers' bend test
+        info.extra["epipolar_yaw"] = _wheeled_image_yaw(sub, w_img, p, m, opt.max_refine_iterations)
+        sigma = opt.lateral_floor_m + opt.lateral_slip * math.hypot(p[1], p[2])
+        info.extra["lateral_prior_m"] = sigma
+        return p, its, _with_lateral_prior(fun, m, sigma), 1
+    # the images see the direction: a soft row
+    sigma = opt.lateral_floor_m + opt.lateral_slip * math.hypot(t0[0], t0[2])
+    info.extra["lateral_prior_m"] = sigma
+    fun = _with_lateral_prior(fun, m, sigma)
+    p, _, its, _ = _levenberg_marquardt(fun, p0, opt.max_refine_iterations)
+    return p, its, fun, 1
 
 
 #: A fit with the sideways prior whose translation ends below this fraction of the depths'
@@ -956,11 +1057,15 @@ def _metric_fit(theta: float, t_dir, info: EstimateInfo, x1, x2, P1, P2, opt: Me
 _COLLAPSE_RATIO = 0.25
 
 
-def _collapsed(p: np.ndarray, t0: np.ndarray) -> bool:
+def _collapsed(p: np.ndarray, t0: np.ndarray, on_heading: bool) -> bool:
     """True when the refined translation ``p[1:]`` is below ``_COLLAPSE_RATIO`` of the length
     the depths started it at (``t0`` (3,)): the scale-free image rows pin the direction, the
-    sideways prior the heading, and when the two disagree only ``t = 0`` satisfies both."""
-    return math.hypot(p[1], p[2]) < _COLLAPSE_RATIO * math.hypot(t0[0], t0[2])
+    sideways prior the heading, and when the two disagree only ``t = 0`` satisfies both.
+    Fitted on the heading (``on_heading``), also when the camera moves more sideways than
+    forward: a turn on the spot, whose lever-arm motion runs along the rotation's epipolar
+    lines, where the image rows no longer see the yaw."""
+    sideways = on_heading and abs(p[2]) < abs(p[1])
+    return sideways or math.hypot(p[1], p[2]) < _COLLAPSE_RATIO * math.hypot(t0[0], t0[2])
 
 
 def _metric_scale(theta: float, t_dir, info: EstimateInfo, P1, P2, opt: MetricTwoPointOptions):

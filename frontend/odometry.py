@@ -806,6 +806,7 @@ class PlanarOdometry:
         so its image error grows as ``keyframe_track_px * sqrt(age)`` on top of the
         per-frame ``pixel_sigma`` (added in variance)."""
         opt = self._two_point_options(mount_se2)
+        opt = replace(opt, follow_heading=False) if opt.mount_se2 is not None else opt
         walk = self.config.odometry.keyframe_track_px
         if walk <= 0 or age <= 0:
             return opt
@@ -952,9 +953,12 @@ class PlanarOdometry:
 
     def _two_point_options(self, mount_se2=None) -> MetricTwoPointOptions:
         """The 2-point options, with the wheeled base's no-sideways-slip prior when
-        ``odometry.lateral_slip`` is set and ``mount_se2`` (3,) is given."""
-        if self.config.odometry.lateral_slip > 0 and mount_se2 is not None:
-            return replace(self._2pt_opt, mount_se2=tuple(float(v) for v in mount_se2))
+        ``odometry.lateral_slip`` is set and ``mount_se2`` (3,) is given (pure rotations
+        fitted on the heading with ``odometry.pure_rotation_on_heading``)."""
+        c = self.config.odometry
+        if c.lateral_slip > 0 and mount_se2 is not None:
+            return replace(self._2pt_opt, mount_se2=tuple(float(v) for v in mount_se2),
+                           follow_heading=c.pure_rotation_on_heading)
         return self._2pt_opt
 
     def _weak_scale(self, two, mf_yaw, info):
