@@ -805,8 +805,7 @@ class PlanarOdometry:
         tracked frame by frame (KLT) wanders from where it was first seen by a random walk,
         so its image error grows as ``keyframe_track_px * sqrt(age)`` on top of the
         per-frame ``pixel_sigma`` (added in variance)."""
-        opt = self._two_point_options(mount_se2)
-        opt = replace(opt, follow_heading=False) if opt.mount_se2 is not None else opt
+        opt = replace(self._two_point_options(mount_se2), follow_heading=False)  # no single arc
         walk = self.config.odometry.keyframe_track_px
         if walk <= 0 or age <= 0:
             return opt
