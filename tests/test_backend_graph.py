@@ -300,6 +300,15 @@ def test_motion_prior_starts_a_start_gap_from_rest(cls):
     assert err_moving > 0.04
 
 
+def _solved_distance_error(results, truth, i: int, j: int, **config) -> float:
+    """Error (m) of the batch-solved distance between frames ``i`` and ``j`` against ``truth``."""
+    g = PlanarPoseGraph(BackendConfig(manhattan=False, **config))
+    for r in results:
+        g.add_frame(r)
+    est = g.optimize()
+    return float(np.linalg.norm(est[j, :2] - est[i, :2]) - np.linalg.norm(truth[j, :2] - truth[i, :2]))
+
+
 def _sparse_start_gap_error(seed: int, **config) -> float:
     """Error (m) of the distance over a start gap: 0.2 m/s at 20 Hz (10 mm steps), steps
     1-199 of 400 partial with x unmeasured (0 at a 1 m sigma) except every fifth of steps
@@ -319,11 +328,7 @@ def _sparse_start_gap_error(seed: int, **config) -> float:
         if sig[0] == 1.0:
             meas[0] = 0.0
         res.append(FrameResult(k, 0.05 * k, Step(meas, np.diag(1 / sig ** 2), status, 10), []))
-    g = PlanarPoseGraph(BackendConfig(manhattan=False, **config))
-    for r in res:
-        g.add_frame(r)
-    est = g.optimize()
-    return float(np.linalg.norm(est[200, :2] - est[0, :2]) - np.linalg.norm(truth[200, :2] - truth[0, :2]))
+    return _solved_distance_error(res, truth, 0, 200, **config)
 
 
 def test_a_start_gap_takes_the_speed_of_the_windows_measured_after_it():
@@ -440,11 +445,7 @@ def _gap_with_short_steps(short, **config) -> float:
         if k in short:
             pose[0], info[0, 0] = 0.038, 1 / 0.012 ** 2
         res[k] = FrameResult(k, res[k].stamp, Step(pose, info, st.status, 10), [])
-    g = PlanarPoseGraph(BackendConfig(manhattan=False, **config))
-    for r in res:
-        g.add_frame(r)
-    est = g.optimize()
-    return float(np.linalg.norm(est[115, :2] - est[45, :2]) - np.linalg.norm(truth[115, :2] - truth[45, :2]))
+    return _solved_distance_error(res, truth, 45, 115, **config)
 
 
 def test_a_gap_is_not_pulled_down_by_two_short_steps_inside_it():
