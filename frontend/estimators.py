@@ -731,17 +731,8 @@ def _base_lateral(p: np.ndarray, m_base_lev: np.ndarray) -> float:
     """Sideways motion (m) of the base_link step of the levelled motion ``p = (yaw, t_x,
     t_z)`` off the chord of its heading change: ``y - x tan(theta / 2)`` (zero for a wheeled
     base on a constant-curvature arc)."""
-    # closed form of lev_step_to_base_step(levelled_motion_to_pose(...)): the levelled step
-    # (-(s tx + c tz), c tx - s tz, th) conjugated by the mount, R_m p + (I - R_th) m (called
-    # ~100 times per refinement, so no arrays)
-    th, tx, tz = float(p[0]), float(p[1]), float(p[2])
-    c, s = math.cos(th), math.sin(th)
-    px, py = -(s * tx + c * tz), c * tx - s * tz
-    mx, my, mpsi = float(m_base_lev[0]), float(m_base_lev[1]), float(m_base_lev[2])
-    cm, sm = math.cos(mpsi), math.sin(mpsi)
-    x = cm * px - sm * py + (1.0 - c) * mx + s * my
-    y = sm * px + cm * py - s * mx + (1.0 - c) * my
-    return y - x * math.tan(0.5 * th)
+    x, y = _lev_step_to_base(p, m_base_lev)
+    return y - x * math.tan(0.5 * float(p[0]))
 
 
 def _arc_motion(q: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
@@ -772,8 +763,8 @@ def _arc_jacobian(q: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
 def _chord_length(p: np.ndarray, m_base_lev: np.ndarray) -> float:
     """The length (m) along the chord of its heading change of the base_link step of the
     levelled motion ``p = (yaw, t_x, t_z)``: :func:`_arc_motion`'s ``rho``."""
-    b = _lev_step_to_base(p, m_base_lev)
-    return float(b[0] * math.cos(0.5 * p[0]) + b[1] * math.sin(0.5 * p[0]))
+    x, y = _lev_step_to_base(p, m_base_lev)
+    return float(x * math.cos(0.5 * p[0]) + y * math.sin(0.5 * p[0]))
 
 
 def _wheeled_refine(fun, p0: np.ndarray, m_base_lev: np.ndarray, max_iter: int) -> tuple[np.ndarray, int]:
@@ -802,15 +793,17 @@ def _wheeled_image_yaw(m: _Matches, w_img: float, p: np.ndarray, m_base_lev: np.
     return float(q[0])
 
 
-def _lev_step_to_base(p: np.ndarray, m_base_lev: np.ndarray) -> np.ndarray:
-    """The base_link step ``(x, y)`` (2,) of the levelled motion ``p = (yaw, t_x, t_z)``
-    (the mapping of :func:`_base_lateral`)."""
+def _lev_step_to_base(p: np.ndarray, m_base_lev: np.ndarray) -> tuple[float, float]:
+    """The base_link step ``(x, y)`` (m) of the levelled motion ``p = (yaw, t_x, t_z)``."""
+    # closed form of lev_step_to_base_step(levelled_motion_to_pose(...)): the levelled step
+    # (-(s tx + c tz), c tx - s tz, th) conjugated by the mount, R_m p + (I - R_th) m (called
+    # ~100 times per refinement by _base_lateral, so no arrays)
     th, tx, tz = float(p[0]), float(p[1]), float(p[2])
     c, s = math.cos(th), math.sin(th)
     px, py = -(s * tx + c * tz), c * tx - s * tz
     mx, my, mpsi = float(m_base_lev[0]), float(m_base_lev[1]), float(m_base_lev[2])
     cm, sm = math.cos(mpsi), math.sin(mpsi)
-    return np.array([cm * px - sm * py + (1.0 - c) * mx + s * my, sm * px + cm * py - s * mx + (1.0 - c) * my])
+    return cm * px - sm * py + (1.0 - c) * mx + s * my, sm * px + cm * py - s * mx + (1.0 - c) * my
 
 
 def _with_lateral_prior(fun, m_base_lev: np.ndarray, sigma: float):
