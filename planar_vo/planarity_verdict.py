@@ -40,6 +40,9 @@ MOTION_WINDOW = 100
 #: A step's 6-DoF fit is a blunder when it departs from its neighbours' median by more than
 #: this many times the fits' noise (a robust sigma of the step-to-step change).
 MOTION_OUTLIER_SIGMAS = 5.0
+#: ... and by more than this (m, deg): precise fits of a hand's jerks are motion, not blunders.
+MOTION_OUTLIER_FLOOR_M = 0.005
+MOTION_OUTLIER_FLOOR_DEG = 0.5
 #: The spread a window of pure noise shows, in units of ``sigma sqrt(steps)``: the median
 #: p5-p95 spread of a Gaussian random walk of 100 steps is 1.10 of it (1.02 at 10 steps).
 _RANDOM_WALK_SPREAD = 1.1
@@ -85,15 +88,16 @@ def _robust_sigma(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0)) if len(d) >= 3 else 0.0
 
 
-def _local_outliers(x: np.ndarray, sigma: float, half: int = 4) -> np.ndarray:
-    """(n,) bool: finite values of ``x`` (n,) more than ``MOTION_OUTLIER_SIGMAS`` ``sigma``
-    from the median of their ``2 half + 1`` neighbours (themselves included)."""
+def _local_outliers(x: np.ndarray, sigma: float, floor: float, half: int = 4) -> np.ndarray:
+    """(n,) bool: finite values of ``x`` (n,) more than ``MOTION_OUTLIER_SIGMAS`` ``sigma``,
+    and more than ``floor`` (what a hand may jerk a camera in one frame), from the median of
+    their ``2 half + 1`` neighbours (themselves included)."""
     out = np.zeros(len(x), bool)
     if sigma <= 0:
         return out
     for i in np.flatnonzero(np.isfinite(x)):
         w = x[max(0, i - half):i + half + 1]
-        out[i] = abs(x[i] - np.median(w[np.isfinite(w)])) > MOTION_OUTLIER_SIGMAS * sigma
+        out[i] = abs(x[i] - np.median(w[np.isfinite(w)])) > max(MOTION_OUTLIER_SIGMAS * sigma, floor)
     return out
 
 
@@ -110,7 +114,9 @@ def _motion_evidence(steps) -> dict:
     few = np.isfinite(dy).sum() < MOTION_NOISE_MIN_STEPS
     s_dy = 0.0 if few else _robust_sigma(dy)
     s_g = 0.0 if few else max(_robust_sigma(g[:, 0]), _robust_sigma(g[:, 1]))
-    bad = _local_outliers(dy, s_dy) | _local_outliers(g[:, 0], s_g) | _local_outliers(g[:, 1], s_g)
+    g_floor = np.radians(MOTION_OUTLIER_FLOOR_DEG)
+    bad = (_local_outliers(dy, s_dy, MOTION_OUTLIER_FLOOR_M) | _local_outliers(g[:, 0], s_g, g_floor)
+           | _local_outliers(g[:, 1], s_g, g_floor))
     kept = [None if b else m for m, b in zip(steps, bad)]
     heights, tilts = [], []
     w = MOTION_WINDOW

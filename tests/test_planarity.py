@@ -98,3 +98,7 @@ def test_a_handheld_camera_is_still_called_handheld_through_noisy_fits(seed):
     r = _verdict(_six_dof_steps(rng, 600, 0.25, 12.0, 0.011, 0.3, 18))
     assert r["verdict"] == "not_planar", r
     assert abs(r["motion"]["height_range_m"] - 0.5) <= 2.0 * r["motion"]["noise_height_m"]
+    # precise fits: the hand's own motion is not taken for blunders
+    r = _verdict(_six_dof_steps(rng, 600, 0.25, 12.0, 0.0005, 0.02, 0))
+    assert r["verdict"] == "not_planar" and r["motion"]["outlier_steps"] == 0, r
+    assert r["motion"]["height_range_m"] == pytest.approx(0.522, abs=0.02)  # the noise-free fits' 0.522
