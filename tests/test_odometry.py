@@ -390,3 +390,40 @@ def test_window_velocity_weighs_the_measured_steps_by_their_variances():
     assert abs(plain[2] - true[2]) > 0.006                      # the plain mean: 8 mm + noise off
     assert abs(t[2] - np.mean([r for r, _ in alike], axis=0)[2]) < 0.0015  # weighted: < 1.5 mm moved
     assert s < 0.005 / 2.0
+
+
+def test_the_guess_averages_half_a_second_of_measured_steps_at_any_frame_rate():
+    """The constant-velocity guess averages the steps of ``velocity_window_s`` (0.5 s), not of a
+    fixed number of frames: 5 frames at 10 Hz, 15 at 30 Hz, where a 2-point step errs by about
+    its own length (8 mm steps, 8 mm sigma, as in a 30 Hz tuning hall whose 40-step gap copied
+    a velocity 19 % fast). Over 200 seeds the guess's error at 30 Hz is sqrt(3) smaller than
+    a 5-frame window's; an explicit ``velocity_window`` still wins."""
+    from planar_vo.frontend.config import FrontendConfig, OdometryConfig
+    from planar_vo.frontend.odometry import window_velocity
+
+    K = CameraIntrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+
+    def guess_errors(odo, dt, seeds=200):
+        errs = []
+        for seed in range(seeds):
+            rng = np.random.default_rng(seed)
+            odo._dt, odo._history, true = dt, [], np.array([0.0, 0.0, 0.008])
+            for n in range(40):
+                odo._n = n
+                t, _ = window_velocity(odo._remember_translation(true + rng.normal(0, 0.008, 3) * [1, 0, 1],
+                                                                 0.008 ** 2))
+            errs.append(t[2] - true[2])
+        return float(np.sqrt(np.mean(np.square(errs))))
+
+    odo = PlanarOdometry(K)
+    assert odo._velocity_frames() == 5  # before any frame: 10 Hz
+    odo._dt = 1.0 / 30.0
+    assert odo._velocity_frames() == 15
+    e30 = guess_errors(odo, 1.0 / 30.0)
+    assert e30 == pytest.approx(0.008 / math.sqrt(15), rel=0.15)
+    odo5 = PlanarOdometry(K, config=FrontendConfig(odometry=OdometryConfig(velocity_window=5)))
+    odo5._dt = 1.0 / 30.0
+    assert odo5._velocity_frames() == 5
+    e5 = guess_errors(odo5, 1.0 / 30.0)
+    assert e5 == pytest.approx(0.008 / math.sqrt(5), rel=0.15)
+    assert e5 / e30 == pytest.approx(math.sqrt(3), rel=0.15)
