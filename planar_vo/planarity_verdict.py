@@ -92,13 +92,13 @@ def _local_outliers(x: np.ndarray, sigma: float, floor: float, half: int = 4) ->
     """(n,) bool: finite values of ``x`` (n,) more than ``MOTION_OUTLIER_SIGMAS`` ``sigma``,
     and more than ``floor`` (what a hand may jerk a camera in one frame), from the median of
     their ``2 half + 1`` neighbours (themselves included)."""
-    out = np.zeros(len(x), bool)
-    if sigma <= 0:
-        return out
-    for i in np.flatnonzero(np.isfinite(x)):
-        w = x[max(0, i - half):i + half + 1]
-        out[i] = abs(x[i] - np.median(w[np.isfinite(w)])) > max(MOTION_OUTLIER_SIGMAS * sigma, floor)
-    return out
+    fin = np.isfinite(x)
+    if sigma <= 0 or not fin.any():
+        return np.zeros(len(x), bool)
+    windows = np.lib.stride_tricks.sliding_window_view(np.pad(x, half, constant_values=np.nan), 2 * half + 1)
+    med = np.full(len(x), np.nan)
+    med[fin] = np.nanmedian(windows[fin], axis=1)  # each holds its own finite centre
+    return fin & (np.abs(np.where(fin, x, 0.0) - np.where(fin, med, 0.0)) > max(MOTION_OUTLIER_SIGMAS * sigma, floor))
 
 
 def _motion_evidence(steps) -> dict:
