@@ -82,10 +82,11 @@ def _up_axes(steps) -> tuple[np.ndarray, np.ndarray]:
 
 def _robust_sigma(x: np.ndarray) -> float:
     """Per-step noise (sigma) of the finite values of ``x`` (n,): from the median absolute
-    step-to-step change, which a smooth real motion hardly moves (a hand moving a camera
-    up 1 mm a frame changes that by far less than the fits' noise)."""
-    d = np.diff(x[np.isfinite(x)])
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0)) if len(d) >= 3 else 0.0
+    second difference (``sqrt(6)`` sigma for white noise), which a smooth real motion
+    hardly moves: a hand's steps change their speed, but smoothly. With first differences
+    the 100 real handheld frames of TUM fr1/xyz read 0.04 m of noise against their 0.13 m."""
+    d = np.diff(x[np.isfinite(x)], 2)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6.0)) if len(d) >= 3 else 0.0
 
 
 def _local_outliers(x: np.ndarray, sigma: float, floor: float, half: int = 4) -> np.ndarray:
