@@ -373,13 +373,8 @@ class OdometryConfig:
     bridge_max_speed: float = 1.0
     bridge_sigma_theta_deg: float = 30.0
     bridge_min_score: float = 0.15   # a bridge takes the Manhattan yaw only from walls this large
-    #: Seconds whose measured steps are averaged (by their variances) into the constant-velocity
-    #: guess: 5 frames at 10 Hz, 15 at 30 Hz. A fixed 5 frames spanned 0.17 s at 30 Hz, whose
-    #: 2-point steps err by about their own length (8 mm): on a 30 Hz tuning hall a 40-step gap
-    #: copied a velocity 19 % fast (hall_s3702: raw drift 1.14 % with 5 frames, 0.62 with 15).
-    velocity_window_s: float = 0.5
-    #: The same in frames, overriding ``velocity_window_s`` (0: derived from it and the frame rate).
-    velocity_window: int = 0
+    #: frames whose measured steps are averaged (by their variances) into the constant-velocity guess
+    velocity_window: int = 5
     #: Floors on a step's std (unmodelled errors). Calibrated on the randomized tuning seeds
     #: 1-2 (`planar-vo bench sweep`): at 2 mm / 0.05 deg / 5 mm (walls) the floors alone
     #: made the stated sigmas of 2-point and partial steps 2-5x their real errors (normalised
@@ -405,11 +400,8 @@ class OdometryConfig:
     two_point_min_sigma_theta_deg: float = 0.02
 
     def __post_init__(self) -> None:
-        if not self.velocity_window >= 0:
-            raise ConfigError(f"config key 'odometry.velocity_window' must be >= 0 (0: from velocity_window_s), "
-                              f"got {self.velocity_window!r}")
         _positive("odometry", plane_sigma_m=self.plane_sigma_m, plane_min_cos=self.plane_min_cos,
-                  velocity_window_s=self.velocity_window_s, wall_gate_sigmas=self.wall_gate_sigmas,
+                  velocity_window=self.velocity_window, wall_gate_sigmas=self.wall_gate_sigmas,
                   two_point_min_cells=self.two_point_min_cells, lateral_floor_m=self.lateral_floor_m,
                   two_point_min_sigma_xy=self.two_point_min_sigma_xy, bridge_max_speed=self.bridge_max_speed,
                   two_point_min_sigma_theta_deg=self.two_point_min_sigma_theta_deg,

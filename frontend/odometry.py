@@ -441,7 +441,7 @@ class PlanarOdometry:
         # a partial step's yaw measured from the keyframe: (frames since K, levelled yaw K -> here, variance)
         self._kf_yaw: tuple[int, float, float] | None = None
         self._last_motion: tuple[float, np.ndarray] | None = None  # levelled (yaw, t) of the last estimate
-        # the last _velocity_frames() measured steps, (frame self._n, levelled t (3,), its
+        # the last velocity_window measured steps, (frame self._n, levelled t (3,), its
         # variance m^2): the guess and its rate of change (_remember_translation, _bridge_sigmas)
         self._history: list[tuple[int, np.ndarray, float]] = []
         self._dpp_track = -1  # Manhattan track of the last direction-plus-point step
@@ -1304,7 +1304,7 @@ class PlanarOdometry:
         if np.linalg.eigvalsh(kt.kf.guess_cov[1:, 1:])[-1] <= np.linalg.eigvalsh(2.0 * cov_m[1:, 1:])[-1]:
             m = kt.predicted(step)
         self._kf_measured, self._kf_guessed = (m, cov_m), None
-        v, n = self._keyframes.velocity(m, self._velocity_frames())
+        v, n = self._keyframes.velocity(m, c.velocity_window)
         self._last_t_sigma = math.sqrt(2.0 * float(np.max(np.diag(cov_m[1:, 1:]))) + c.min_sigma_xy ** 2) / n
         self._remember_translation(v, self._last_t_sigma ** 2)
         self._last_motion = (self._last_motion[0], v)
@@ -1671,16 +1671,10 @@ class PlanarOdometry:
         d = np.diff(np.array([e[1] for e in self._history])[:, [0, 2]], axis=0)
         return min(float(np.sqrt((d * d).sum(1).mean())), cap)
 
-    def _velocity_frames(self) -> int:
-        """Frames in the constant-velocity guess's window: ``odometry.velocity_window``, or
-        (0) ``velocity_window_s`` at the last frame interval, at least 2."""
-        c = self.config.odometry
-        return c.velocity_window if c.velocity_window > 0 else max(2, round(c.velocity_window_s / self._dt))
-
     def _remember_translation(self, t: np.ndarray, var: float) -> list[tuple[np.ndarray, float]]:
         """Keep the measured levelled ``t`` (3,) of this frame with its ``var`` (m^2); returns
         the ``(t, var)`` the constant-velocity guess of the next partial or bridged steps
-        averages (:func:`window_velocity`): those measured in the last :meth:`_velocity_frames`
+        averages (:func:`window_velocity`): those measured in the last ``velocity_window``
         frames. A single step's error (1-3 mm on low texture) is copied into every guessed
         step that follows: 68 partial steps in a row on a tuning log (straight_s118) turned
         one step's error into 3 % of their path. Measurements
@@ -1688,7 +1682,7 @@ class PlanarOdometry:
         measured ones the last five measured spanned 10-15 frames, and a robot braking to
         a stop in 1 s was guessed 6-18 mm a step too fast (a low-texture tuning log's last
         14 steps, 9 cm)."""
-        w = self._velocity_frames()
+        w = self.config.odometry.velocity_window
         self._history = (self._history + [(self._n, np.asarray(t, dtype=float).copy(), float(var))])[-w:]
         return [(e[1], e[2]) for e in self._history if self._n - e[0] < w]
 
@@ -1713,7 +1707,7 @@ class PlanarOdometry:
         limit, :meth:`_bridge_sigmas`). Matches that agree on a wrong motion do that: floor
         tiles' grout grid aliased under KLT gave a tuning loop 2-point steps 36-51 mm off a
         35.6 mm step (backwards), 2 deg off in yaw. Only while a measured translation is
-        recent (:meth:`_velocity_frames`) and three measured steps give the guess's spread."""
+        recent (``velocity_window`` frames) and three measured steps give the guess's spread."""
         c = self.config.odometry
         m2 = self._velocity_m2(t, cov)
         if m2 is None or m2 <= c.velocity_gate_sigmas ** 2:
@@ -1728,7 +1722,7 @@ class PlanarOdometry:
         (3, 3) from the constant-velocity guess (:meth:`_velocity_jump`), or None while the
         guess is not fit to judge (gate off, no recent measured translation)."""
         c = self.config.odometry
-        w = self._velocity_frames()
+        w = c.velocity_window
         if c.velocity_gate_sigmas <= 0 or self._last_motion is None \
                 or not any(self._n - e[0] < w for e in self._history):
             return None
@@ -1797,7 +1791,7 @@ class PlanarOdometry:
         else:
             # the velocity over the window is the difference of two motions from the keyframe
             # divided by the frames between them: no further averaging (it would lag)
-            v, n = self._keyframes.velocity(link[1], self._velocity_frames())
+            v, n = self._keyframes.velocity(link[1], c.velocity_window)
             self._last_t_sigma = math.sqrt(2.0 * float(np.max(np.diag(link[2][1:, 1:]))) + c.min_sigma_xy ** 2) / n
             self._remember_translation(v, self._last_t_sigma ** 2)
             self._last_motion = (float(yaw), v)
