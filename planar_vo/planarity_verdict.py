@@ -132,6 +132,34 @@ def _motion_evidence(steps) -> dict:
             "noise_tilt_deg": float(np.degrees(_RANDOM_WALK_SPREAD * s_g * np.sqrt(2.0 * n)))}
 
 
+def _motion_part(rep: dict, steps: list, levelled: bool, verdicts: list) -> dict | None:
+    """The motion evidence of :func:`planarity_report` from the 6-DoF fits ``steps`` ((R, t) or
+    None per step): ``rep["motion"]`` filled when enough steps were fitted, and, when the floor
+    gave no verdict (``verdicts`` empty), a verdict appended to ``verdicts``, or the evidence
+    (:func:`_motion_evidence`) returned when its ranges are what the fits' noise alone gives.
+    Chained 6-DoF steps random-walk (a few cm and degrees over hundreds of frames), so they are
+    judged over windows of at most MOTION_WINDOW steps, and only when the floor, far more
+    precise, was not seen."""
+    fitted = sum(m is not None for m in steps)
+    if fitted < max(3, 0.5 * len(steps)):
+        return None
+    ev = _motion_evidence(steps)
+    height, tilt = ev["height_range_m"], ev["tilt_range_deg"]
+    rep["motion"] = {"steps_fitted": fitted, "window_steps": MOTION_WINDOW, "height_range_m": round(height, 4),
+                     "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed",
+                     "outlier_steps": ev["outlier_steps"], "noise_height_m": round(ev["noise_height_m"], 4),
+                     "noise_tilt_deg": round(ev["noise_tilt_deg"], 3)}
+    if verdicts:
+        return None
+    planar = tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M
+    # ranges the fits' noise alone explains say nothing either way
+    if not planar and height <= MOTION_NOISE_MARGIN * ev["noise_height_m"] \
+            and tilt <= MOTION_NOISE_MARGIN * ev["noise_tilt_deg"]:
+        return ev
+    verdicts.append(planar)
+    return None
+
+
 def planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
     """Is the motion planar? Two independent pieces of evidence, both from the data.
 
@@ -156,28 +184,7 @@ def planarity_report(frame_infos: list[dict], levelled: bool) -> dict:
         rep["floor"] = {"tilt_range_deg": round(tilt, 3), "height_range_m": round(h, 4)}
         verdicts.append(tilt < PLANAR_TILT_RANGE_DEG and h < PLANAR_HEIGHT_RANGE_M)
 
-    # Chained 6-DoF steps random-walk (a few cm and degrees over hundreds of frames), so
-    # they are judged over windows of at most MOTION_WINDOW steps, and only when the floor,
-    # far more precise, was not seen.
-    steps = [f.get("motion_6dof") for f in frame_infos[1:]]
-    fitted = sum(m is not None for m in steps)
-    too_noisy = None
-    if fitted >= max(3, 0.5 * len(steps)):
-        ev = _motion_evidence(steps)
-        height, tilt = ev["height_range_m"], ev["tilt_range_deg"]
-        rep["motion"] = {"steps_fitted": fitted, "window_steps": MOTION_WINDOW, "height_range_m": round(height, 4),
-                         "tilt_range_deg": round(tilt, 3), "gravity": "measured" if levelled else "assumed",
-                         "outlier_steps": ev["outlier_steps"], "noise_height_m": round(ev["noise_height_m"], 4),
-                         "noise_tilt_deg": round(ev["noise_tilt_deg"], 3)}
-        if not verdicts:
-            planar = tilt < PLANAR_TILT_RANGE_DEG and height < PLANAR_HEIGHT_RANGE_M
-            # ranges the fits' noise alone explains say nothing either way
-            if not planar and height <= MOTION_NOISE_MARGIN * ev["noise_height_m"] \
-                    and tilt <= MOTION_NOISE_MARGIN * ev["noise_tilt_deg"]:
-                too_noisy = ev
-            else:
-                verdicts.append(planar)
-
+    too_noisy = _motion_part(rep, [f.get("motion_6dof") for f in frame_infos[1:]], levelled, verdicts)
     if too_noisy is not None:
         rep["verdict"] = "unverified"
         rep["message"] = (f"the floor was seen in {len(normals)} of {n} frames and the camera's 6-DoF fits are "
