@@ -38,7 +38,7 @@ def _spread(values) -> float:
 
 MOTION_WINDOW = 100
 #: A step's 6-DoF fit is a blunder when it departs from its neighbours' median by more than
-#: this many times the fits' noise (a robust sigma of the step-to-step change).
+#: this many times the fits' noise (:func:`_robust_sigma`, from second differences).
 MOTION_OUTLIER_SIGMAS = 5.0
 #: ... and by more than this (m, deg): precise fits of a hand's jerks are motion, not blunders.
 MOTION_OUTLIER_FLOOR_M = 0.005
