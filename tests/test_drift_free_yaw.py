@@ -21,6 +21,8 @@ from planar_vo.frontend import odometry as odometry_module
 from planar_vo.frontend.config import FrontendConfig, OdometryConfig, PlaneConfig
 from planar_vo.frontend.estimators import EstimateInfo, PlanarMotion, estimate_planar_motion_dpp
 from planar_vo.frontend.odometry import PlanarOdometry
+from planar_vo.frontend.planes import Plane
+from planar_vo.frontend.pointplanes import refine_pairs_on_planes
 from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
                                       FrameResult, ManhattanObservation, Step)
 from planar_vo.sim.problems import make_planar_problem
@@ -171,6 +173,76 @@ def test_a_group_heading_that_jumps_is_vetoed_by_the_two_point_yaw(wobble, monke
     assert dpp[~into].mean() >= 0.8   # the other steps keep the walls' yaw
     heading = np.degrees(np.cumsum(err[:, 2]))
     assert np.abs(heading - heading[0]).max() < 0.3
+
+
+def _wall_fitted_off(odo, seed: int, off_deg: float):
+    """A step towards a frontal wall 3.7 m ahead (84 matches on it) past a side wall (44,
+    2-3.4 m), 32.5 mm forward turning 0.02 deg, depths with the modelled noise, the walls
+    fitted in both views, view 2's frontal wall ``off_deg`` off (its normal turned about
+    the vertical): ``(P1, P2, (Q1, Q2, scales) refined onto the walls, truth yaw, t, the
+    Manhattan yaw those walls give)``."""
+    rng = np.random.default_rng(seed)
+    opt, c = odo._dpp_opt, odo.config.odometry
+    far = np.column_stack([rng.uniform(-1.4, 1.4, 84), rng.uniform(-0.8, 0.4, 84), np.full(84, 3.7)])
+    near = np.column_stack([np.full(44, -1.47), rng.uniform(-0.8, 0.4, 44), rng.uniform(2.0, 3.4, 44)])
+    yaw, t = math.radians(0.02), np.array([0.0, 0.0, -0.0325])
+    R = g.rot_y(yaw)
+    P1t = np.vstack([far, near])
+
+    def read(P):
+        sz = opt.depth_sigma_const + opt.depth_sigma_quad * P[:, 2] ** 2
+        return P * (1.0 + rng.normal(0.0, 1.0, len(P)) * sz / P[:, 2])[:, None]
+
+    P1, P2 = read(P1t), read(P1t @ R.T + t)
+    normals = (np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0]))
+
+    def plane(n, d):
+        return Plane("wall", n, float(d), 0.3, 500, 0.001, np.eye(3) * 1e-8)
+
+    planes1 = [plane(n, d) for n, d in zip(normals, (3.7, 1.47))]
+    planes2 = [plane(R @ n, d + (R @ n) @ t) for n, d in zip(normals, (3.7, 1.47))]
+    planes2[0].normal = g.rot_y(math.radians(off_deg)) @ planes2[0].normal
+    refined = refine_pairs_on_planes(P1, P2, planes1, planes2, yaw, depth_sigma_const=opt.depth_sigma_const,
+                                     depth_sigma_quad=opt.depth_sigma_quad, incidence=c.depth_incidence,
+                                     ray_sigma=opt.pixel_sigma / opt.focal_px, plane_sigma=c.plane_sigma_m,
+                                     gate_chi2=opt.chi2, min_cos=c.plane_min_cos)
+    return P1, P2, (refined[0], refined[1], refined[2:]), yaw, t, yaw + math.radians(off_deg)
+
+
+def test_walls_fitted_off_in_one_frame_cannot_vouch_for_their_own_yaw(wobble, monkeypatch):
+    """Mechanism 1 through the depths: a wall fitted 1.7 deg off in one frame (a frontal
+    wall 3.7 m ahead on an unseen hall, seed 8601: its Manhattan yaw 1.8 deg off at a
+    stated 0.37, the final heading 1.6 deg off) gives a wrong Manhattan yaw, and the depths
+    refined onto that wall (:func:`refine_pairs_on_planes`) move rigidly with it: scored on
+    them, the wrong yaw explains more matches than the right 2-point yaw and is not vetoed
+    (0 of 20 here; on the hall 84 against 58 of 129). The veto scores the depths as read,
+    where the 2-point yaw explains them better (20 of 20 vetoed; the hall: 129 against 110,
+    its final heading 0.5 deg off). The odometry hands the veto the depths as read."""
+    K, mount, frames = wobble
+    odo = PlanarOdometry(K, mount)
+    cov = np.diag([math.radians(0.03) ** 2, 3e-3 ** 2, 3e-3 ** 2])
+    vetoed = {"refined": 0, "read": 0}
+    for seed in range(20):
+        P1, P2, refined, yaw, t, wrong = _wall_fitted_off(odo, seed, 1.7)
+        for name, pts in (("refined", refined), ("read", (P1, P2, None))):
+            walls, est = estimate_planar_motion_dpp(pts[0], pts[1], wrong, odo._dpp_opt,
+                                                    yaw_sigma=math.radians(0.05), depth_scale=pts[2])
+            two = (PlanarMotion(yaw, t.copy()), EstimateInfo(inliers=np.ones(len(P1), bool), covariance=cov))
+            vetoed[name] += odo._vetoed((walls, est, 0, wrong), two, pts, FrameDiagnostics())
+    assert vetoed["refined"] <= 2 and vetoed["read"] >= 18, vetoed
+    # the odometry scores its vetoes on the depths as read (no refined depths' scales)
+    seen = []
+    real = PlanarOdometry._veto
+
+    def spy(self, local, var, track, two, pts, info, walls_score, partial=False):
+        seen.append(pts[2])
+        return real(self, local, var, track, two, pts, info, walls_score, partial)
+
+    monkeypatch.setattr(PlanarOdometry, "_veto", spy)
+    odo = PlanarOdometry(K, mount)
+    for f in frames[:15]:
+        odo.process(f.rgbd)
+    assert len(seen) >= 5 and all(s is None for s in seen)
 
 
 def _vetoes(odo, walls_off_deg: float, two_point_off_deg: float, two_point_shift_m: float) -> int:
