@@ -284,7 +284,7 @@ def _typical_depth(P: np.ndarray) -> float:
 
 
 def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool,
-                     carried: np.ndarray | None = None) -> np.ndarray:
+                     carried: np.ndarray) -> np.ndarray:
     """(3, 3) covariance over ``(yaw, t_x, t_z)`` of a step taken as the difference of two
     motions from a keyframe: their errors share the keyframe's part, so the step errs by
     about what one motion from the keyframe does (``cov_k``), not by the sum of two;
@@ -298,12 +298,11 @@ def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool,
     the tracks' image positions, whose errors the two motions share (the keyframe's
     corners, and a track's slowly drifting position), so there the step is no less certain
     than the frame-to-frame estimate of the same step: those two variances are capped at
-    ``cov_step``'s. With ``cov_k`` alone they were twice the errors (sideways and yaw errors
-    0.47 / 0.57 of their sigmas on the tuning halls of seeds 3700-3707; the normalised-error
-    band of docs/bench asks for 0.5-2)."""
-    extra = np.zeros((3, 3)) if carried is None else carried
+    ``cov_step``'s. With ``cov_k`` alone they were about twice the errors (sideways and yaw
+    errors 0.53 / 0.61 of their sigmas over 1607 such steps of the tuning halls of seeds
+    3700-3707, 0.87 / 1.09 with the cap; the normalised-error band of docs/bench asks for 0.5-2)."""
     if chained_yaw:
-        cov = cov_k + extra
+        cov = cov_k + carried
         if cov[0, 0] <= 0:
             return cov
         d = np.array([math.sqrt(cov_step[0, 0] / cov[0, 0]), 1.0, 1.0])
@@ -311,7 +310,7 @@ def _step_covariance(cov_k: np.ndarray, cov_step: np.ndarray, chained_yaw: bool,
     v_k, v_s = np.diag(cov_k)[:2], np.diag(cov_step)[:2]
     d = np.ones(3)
     d[:2] = np.sqrt(np.where(v_s < v_k, v_s / np.where(v_k > 0, v_k, 1.0), 1.0))
-    return cov_k * np.outer(d, d) + extra
+    return cov_k * np.outer(d, d) + carried
 
 
 def _image_yaw_bend(motion, est) -> tuple[float, float, float]:
