@@ -698,7 +698,8 @@ class PlanarOdometry:
         # whole 2-point step and went through (-5.2 deg in one step on a tuning hall).
         # A wrong association leaves no Manhattan yaw for a partial step either, and the
         # Manhattan yaw of a step whose 1-point translation failed passes the same test.
-        # Scored on the depths as read: the plane-refined ones share the walls' fits (below).
+        # Scored on the depths as read, here and in _rotation_under_walls: the plane-refined
+        # ones share the walls' fits (_vetoed).
         raw = (P1, P2, None)
         if dpp is not None and two is not None and self._vetoed(dpp, two, raw, info):
             dpp, mf_yaw = None, None
@@ -706,7 +707,7 @@ class PlanarOdometry:
             mf_yaw = None
         two, weak = self._weak_scale(two, mf_yaw, info)
         if two is not None and mf_yaw is not None and two[1].status == "pure_rotation":
-            two = self._rotation_under_walls(two, mf_yaw, pts, info)
+            two = self._rotation_under_walls(two, mf_yaw, raw, info)
         if weak is not None and mf_yaw is None:
             # no wall gives the yaw, the 2-point method does: a partial step at its yaw,
             # measured from the keyframe when it can be
@@ -1027,7 +1028,9 @@ class PlanarOdometry:
         with a 1-point translation refused (62 of 142 depths agreeing), and taken as the
         step's yaw it turned the final heading from -0.08 to -1.07 deg. (The veto a partial
         step's Manhattan yaw passes, :meth:`_partial_vetoed`, runs first with the same gate
-        and cost test, so such a yaw rarely reaches this one.)"""
+        and cost test, so such a yaw rarely reaches this one.) ``pts``: the 3-D matches as
+        read (``(P1, P2, None)``), for the reason :meth:`_vetoed` gives: the depths refined
+        onto a wall fitted off move with it and vouch for its yaw."""
         var2 = two[1].covariance[0, 0]
         if mf_yaw[1] ** 2 >= var2:
             return two

@@ -302,6 +302,43 @@ def test_a_pure_rotation_gives_way_to_the_manhattan_yaw():
             assert info.yaw_check["vetoed"] and info.yaw_check["partial"]
 
 
+
+def test_a_pure_rotation_does_not_give_way_to_walls_that_vouch_for_themselves(monkeypatch):
+    """The cost test of a pure rotation against a Manhattan yaw beyond the veto's gate is
+    scored on the depths as read, as the vetoes are (tests/test_drift_free_yaw.py): a frontal
+    wall fitted 3 deg off in the second view gives a wrong Manhattan yaw, and the depths
+    refined onto that wall move rigidly with it. Scored on them, the wrong yaw out-explains
+    the right rotation's and takes its place (kept 0 of 20 seeds); on the depths as read the
+    rotation keeps its yaw (20 of 20). The odometry hands the test the depths as read."""
+    from test_drift_free_yaw import _wall_fitted_off
+    from planar_vo.frontend.estimators import EstimateInfo, PlanarMotion
+    odo = PlanarOdometry(K, Mount(T_BASE_CAM))
+    cov = np.diag([math.radians(0.5) ** 2, 3e-3 ** 2, 3e-3 ** 2])  # a rotation's yaw, less sure than the walls'
+    kept = {"refined": 0, "read": 0}
+    for seed in range(20):
+        P1, P2, refined, yaw, t, wrong = _wall_fitted_off(odo, seed, 3.0)
+        for name, pts in (("refined", refined), ("read", (P1, P2, None))):
+            two = (PlanarMotion(yaw, t.copy()),
+                   EstimateInfo(inliers=np.ones(len(P1), bool), status="pure_rotation", covariance=cov))
+            info = FrameDiagnostics()
+            info.two_point = {}
+            kept[name] += odo._rotation_under_walls(two, (wrong, math.radians(0.37), wrong), pts, info) is not None
+    assert kept == {"refined": 0, "read": 20}, kept
+    # through _estimate: the rotations of the end-wall steps reach the test with no refined scales
+    seen = []
+    real = PlanarOdometry._rotation_under_walls
+
+    def spy(self, two, mf_yaw, pts, info):
+        seen.append(pts[2])
+        return real(self, two, mf_yaw, pts, info)
+
+    monkeypatch.setattr(PlanarOdometry, "_rotation_under_walls", spy)
+    yaw, t = math.radians(0.3), np.array([0.0, 0.0, -0.027])
+    for seed in range(4):
+        _step_at_wall_yaw(yaw, math.radians(0.01), *_end_wall_matches(yaw, t, 55, seed))
+    assert len(seen) >= 2 and all(s is None for s in seen)
+
+
 def _end_wall_depth(yaw: float, t: np.ndarray, z_wall: float, rng) -> np.ndarray:
     """(H, W) float32 depth (m) of the level camera facing a flat wall ``z_wall`` metres ahead
     in the first frame, after the levelled motion ``(yaw, t)`` (the identity for the first
