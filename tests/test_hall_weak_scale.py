@@ -302,7 +302,6 @@ def test_a_pure_rotation_gives_way_to_the_manhattan_yaw():
             assert info.yaw_check["vetoed"] and info.yaw_check["partial"]
 
 
-
 def test_a_pure_rotation_does_not_give_way_to_walls_that_vouch_for_themselves(monkeypatch):
     """The cost test of a pure rotation against a Manhattan yaw beyond the veto's gate is
     scored on the depths as read, as the vetoes are (tests/test_drift_free_yaw.py): a frontal
