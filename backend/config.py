@@ -82,9 +82,9 @@ class BackendConfig:
     #: measured steps' changes are mostly their noise, and at that looseness a few partial
     #: steps measured short pulled a whole gap's speed down with them
     #: (:meth:`_GraphBuilder._gap_prior_accel`). 0: consecutive steps, as for the others.
-    #: A gap at the start of a run (a batch solve) is tied to four windows this long of the
-    #: measured steps after it, at the acceleration they show (:meth:`_GraphBuilder._start_gap_accel`);
-    #: 0 leaves it at the loose bound.
+    #: A gap at the start of a run (a batch solve) longer than ``motion_prior_window`` steps
+    #: is tied to four windows this long of the measured steps after it, at the acceleration
+    #: they show (:meth:`_GraphBuilder._start_gap_accel`); 0 leaves it at the loose bound.
     motion_prior_gap_baseline_s: float = 0.5
     #: The same for the turn rate (deg/s^2): a heading weaving with a 1 m period at 0.5 m/s
     #: and turn rates up to 10 deg/s (the randomized scenes' cap) changes its turn rate by
