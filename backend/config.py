@@ -32,7 +32,9 @@ class BackendConfig:
     a candidate becomes a graph variable once ``new_frame_min_observations`` mutually
     consistent observations arrived within ``new_frame_window`` frames (so one stray
     wall does not create a frame). An observation within ``same_frame_deg`` of a frame
-    the same pose already observed is that frame seen twice and is ignored.
+    the same pose already observed is that frame seen twice and is ignored; one beyond
+    every gate but within ``same_frame_deg`` of a known frame joins that frame on the same
+    evidence a new frame needs.
     """
 
     # --- prior on the first pose (odom = base at the first frame)
@@ -169,7 +171,10 @@ class BackendConfig:
     new_frame_policy: Literal["any", "dominant", "never"] = "any"
     #: An observation within this of a known frame (modulo 90 deg) joins it even beyond
     #: the sigma gate: local frames of one building differ by more, so the chained
-    #: heading drifted. Must stay below half the smallest angle between two corridors.
+    #: heading drifted. It joins once ``new_frame_min_observations`` consistent ones
+    #: arrived within ``new_frame_window`` frames, as a new frame would: one or two
+    #: sightings of a box a few degrees off the walls are not a drift.
+    #: Must stay below half the smallest angle between two corridors.
     same_frame_deg: float = 8.0
     new_frame_min_observations: int = 3
     new_frame_window: int = 15               # frames

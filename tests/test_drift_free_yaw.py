@@ -439,6 +439,40 @@ def test_a_second_wall_group_a_few_degrees_off_is_not_a_new_frame():
     assert np.max(np.abs(err)) < 0.1
 
 
+@pytest.mark.parametrize("online", [False, True])
+def test_two_stray_sightings_after_a_long_stretch_do_not_turn_the_heading(online):
+    """The other side of the same-frame rule, seen on an unseen hall (hall_s8905): 470
+    frames after the last wall, two sightings of a box face 2.8 deg off the walls, beyond
+    the sigma gate of a heading the steps kept to 0.6 deg, joined the frame one by
+    one and turned the rest of the run about its weakest step (smoothed final yaw +1.94
+    deg, raw -0.64). Here the steps are honest (0.02 deg, unbiased), one of them is weak
+    (0.5 deg), and two sightings 3 deg off come 140 frames after the walls: as a new frame
+    would, joining a known frame beyond its gate takes ``new_frame_min_observations``
+    consistent sightings, so these two stay pending and the heading keeps the chain's turn."""
+    from planar_vo.backend.graph import IncrementalPlanarPoseGraph
+
+    truth, results = _drifting_corridor(drift_deg=0.0, gap=(100, 300))
+    rng = np.random.default_rng(4)
+    for r in results[1:]:  # honest steps: their yaw noise is what they state
+        r.step.pose[2] += rng.normal(0.0, math.radians(0.02))
+    weak = results[150].step
+    weak.information = np.diag([1 / 0.002 ** 2, 1 / 0.002 ** 2, 1 / math.radians(0.5) ** 2])
+    for k in (240, 244):
+        yaw = float(g.wrap_quarter(-truth[k, 2] + math.radians(3.0)))
+        results[k].manhattan = [ManhattanObservation(yaw, math.radians(0.15), 0.4, 0)]
+    graph = IncrementalPlanarPoseGraph() if online else PlanarPoseGraph()
+    for r in results:
+        graph.add_frame(r)
+    poses = graph.estimate() if online else graph.optimize()
+    assert graph.stats["manhattan_frames"] == 1 and graph.stats["drift_associations"] == 0
+    assert graph.stats["pending"] == 2
+    # after the last wall (frame 99) nothing measures the heading but the steps: the
+    # smoothed turn from there to the end is the chain's (the code before: 3.1 deg off it)
+    raw = graph.raw_poses()
+    turn = math.degrees(g.wrap_angle((poses[-1, 2] - poses[99, 2]) - (raw[-1, 2] - raw[99, 2])))
+    assert abs(turn) < 0.05
+
+
 # ------------------------------------------------------ 4. textureless is announced
 def test_textureless_corridor_is_announced_not_reported_as_success(tmp_path, capsys):
     """Mechanism 4: with no texture and the end wall out of range, the translation is
