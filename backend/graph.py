@@ -244,7 +244,6 @@ class _GraphBuilder:
         self._mp_fine: tuple[list[int], list[int]] = ([], [])
         self._mp_fine_estimated: list[int] = []  # forward-fine steps an estimator measured (not weak)
         self._mp_measured: list[int] = []  # the first three steps whose forward speed was measured
-        self._mp_first_estimated: int | None = None  # the first step whose forward speed was measured
         # the speed after a start gap (_start_windows) and the frames pending only for it
         self._mp_sw = {"out": [], "acc": np.zeros(4), "next": 0, "end": None}
         self._mp_start_only: set[int] = set()
@@ -512,11 +511,8 @@ class _GraphBuilder:
                 self._mp_fine[ax].append(k)
         if vel is not None and vel[3][0] and not weak:
             self._mp_fine_estimated.append(k)
-        if self._forward_measured(k):
-            if self._mp_first_estimated is None:
-                self._mp_first_estimated = k
-            if len(self._mp_measured) < 3:
-                self._mp_measured.append(k)
+        if len(self._mp_measured) < 3 and self._forward_measured(k):
+            self._mp_measured.append(k)
         w = self.cfg.motion_prior_window
         if weak:
             self._mp_last_weak = k
@@ -537,7 +533,7 @@ class _GraphBuilder:
         estimator step at all (an untextured corridor) never ended it: its priors stayed at the
         loose bound, nothing held the start to the speed measured after it, and an untextured
         straight corridor whose distance along was first measured 205 frames in started at
-        40 mm a step against a true 26 (straight_s9636 of seeds 9600-9699)."""
+        35 mm a step against a true 26 (straight_s9636 of seeds 9600-9699)."""
         vel = self._mp_vel[k]
         return vel is not None and (not self._mp_weak[k] or math.sqrt(vel[2][0]) < 0.25 * abs(vel[1][0]))
 
@@ -695,15 +691,15 @@ class _GraphBuilder:
     def _in_start_gap(self, k: int) -> bool:
         """Whether the prior on step ``k`` belongs to a gap at the start of a run (there is no
         "before"): it ties a step before the first one whose forward speed was measured
-        (:meth:`_forward_measured`), or one of the
-        measured steps whose windows give the speed after the gap (:meth:`_start_windows`;
+        (:meth:`_forward_measured`), or one of the measured steps whose windows give the
+        speed after the gap (:meth:`_start_windows`;
         all of them while those windows are incomplete). False where the gap was no longer
         than ``motion_prior_window`` steps: the window ties it to the measured steps after it,
         as any other gap. The windows tie 2 s of measured steps at the acceleration they show
         between them, and a base speeding up from rest over those seconds is bent by it: on
         lturn_s8701 (8700 set; one partial first step, then 0 -> 0.44 m/s in 1 s) the
         smoothed start lost 10 mm that the raw chain kept (0.08 -> 0.25 % of the path)."""
-        first = self._mp_first_estimated
+        first = self._mp_measured[0] if self._mp_measured else None
         if not self.hold_start_gap or self.cfg.motion_prior_gap_baseline_s <= 0:
             return False
         if first is not None and first <= 1 + self.cfg.motion_prior_window:
@@ -713,17 +709,18 @@ class _GraphBuilder:
 
     def _start_windows(self, count: int = 4) -> list | None:
         """``(t, v, n)`` (s, m/s, (m/s)^2) of the first ``count`` windows of steps whose
-        forward speed was measured (:meth:`_forward_measured`) after a gap at the start, in order, each spanning at least
-        ``motion_prior_gap_baseline_s``: the base_link forward velocity over the window (its
-        summed displacement over its summed duration) and that velocity's noise variance.
+        forward speed was measured (:meth:`_forward_measured`) after a gap at the start, in
+        order, each spanning at least ``motion_prior_gap_baseline_s``: the base_link forward
+        velocity over the window (its summed displacement over its summed duration) and that
+        velocity's noise variance.
         None until that many windows have arrived. Whole windows, not single steps: a
         20 Hz direction-plus-point step states ~5 mm, a velocity noise of ~0.1 m/s that
         hides what a cruising base does. Each step is read once (the scan resumes)."""
         sw = self._mp_sw
-        if self._mp_first_estimated is None or len(sw["out"]) >= count:
+        if not self._mp_measured or len(sw["out"]) >= count:
             return sw["out"] if len(sw["out"]) >= count else None
         acc = sw["acc"]  # displacement, duration, variance, time-weighted midpoint
-        for i in range(max(sw["next"], self._mp_first_estimated), len(self._mp_vel)):
+        for i in range(max(sw["next"], self._mp_measured[0]), len(self._mp_vel)):
             sw["next"] = i + 1
             vel = self._mp_vel[i]
             if not self._forward_measured(i):

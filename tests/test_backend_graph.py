@@ -368,7 +368,7 @@ def _partial_only_start_gap_error(seed: int, **config) -> float:
 def test_a_start_gap_ends_where_a_partial_step_measures_the_speed():
     """straight_s9636 (seeds 9600-9699, untextured, seen): no estimator measured any step,
     so the start gap never ended, its priors stayed at the loose bound and the smoothed
-    start ran at 40 mm a step against a true 26 (18.8 % of the path at the end). The gap now
+    start ran at 35 mm a step against a true 26 (18.8 % of the path at the end). The gap now
     ends at the first step whose forward speed was measured, by an estimator or by a
     partial step within 25 %, and windows of such steps give the speed after it, also the
     two or three that arrive before the log ends. Measured over 5 seeds: the 5 m gap's
