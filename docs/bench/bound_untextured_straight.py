@@ -20,10 +20,12 @@ import sys
 
 import numpy as np
 
+from planar_vo.backend.config import BackendConfig
+from planar_vo.core.geometry import wrap_angle
 from planar_vo.sim.synth import synth_trajectory
 from planar_vo.sim.synth_random import randomized_config
 
-ACCEL = 0.5  # m/s^2, the back-end's motion_prior_accel
+ACCEL = BackendConfig().motion_prior_accel  # m/s^2: the back-end's motion prior, as planar-vo run uses it
 
 
 def step_lengths(psi_mid, z, sigma, accel_dt2, slip_sigma):
@@ -53,12 +55,12 @@ def forward_error_pct(seed: int, sigma: float, slip: float, floor: float, lever:
     d = np.diff(P[:, :2], axis=0)
     s_true = np.hypot(d[:, 0], d[:, 1])
     axis = (P[-1, :2] - P[0, :2]) / np.linalg.norm(P[-1, :2] - P[0, :2])
-    psi = P[:, 2] - np.arctan2(axis[1], axis[0])
+    psi = wrap_angle(P[:, 2] - np.arctan2(axis[1], axis[0]))
     psi_mid = 0.5 * (psi[1:] + psi[:-1])
     across = (P[:, :2] - P[0, :2]) @ np.array([-axis[1], axis[0]])
     z = across + np.random.default_rng(seed).normal(0.0, sigma, len(across))
     dt = float(np.median(np.diff(stamps)))
-    slip_sigma = floor + slip * s_true + lever * np.abs(np.diff(P[:, 2]))
+    slip_sigma = floor + slip * s_true + lever * np.abs(wrap_angle(np.diff(P[:, 2])))
     exact = not (slip > 0 or floor > 0 or lever > 0)
     s_hat = step_lengths(psi_mid, z, sigma, ACCEL * dt * dt, None if exact else slip_sigma)
     err = (s_hat - s_true) @ np.cos(psi_mid)
