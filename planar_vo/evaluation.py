@@ -12,7 +12,7 @@ from evo.tools import file_interface
 from planar_vo.core.errors import InputError
 from planar_vo.io import open_log
 from planar_vo.io.trajectory import read_tum_trajectory
-from planar_vo.metrics import planarity, trajectory_errors
+from planar_vo.metrics import per_frame_errors, planarity, trajectory_errors
 
 ROWS = [
     ("matched", "poses matched", "{:.0f}"),
@@ -68,23 +68,54 @@ def find_ground_truth(run_dir: Path):
     return ground_truth_for_log(json.loads(report.read_text()).get("log", ""))[0]
 
 
-def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
-    """Errors of ``raw.tum``, ``smoothed.tum`` (and ``smoothed_no_loops.tum``, ``wheel_odom.tum``
-    when present) in ``run_dir`` against ``gt`` (a Trajectory)."""
-    run_dir = Path(run_dir)
+def _run_trajectories(run_dir: Path, gt):
+    """``(gt, {name: evo trajectory})``: the run's ground truth (``gt`` or found) and the
+    trajectories :func:`evaluate_run` compares, in :data:`COLUMNS` order."""
     if not (run_dir / "smoothed.tum").exists():
         raise InputError(f"{run_dir}: not a run folder (no smoothed.tum); run 'planar-vo run LOG --out {run_dir}' first")
     if gt is None:
         gt = find_ground_truth(run_dir)
     if gt is None:
         raise InputError(f"{run_dir}: no ground truth found in the run's log; pass one with --gt FILE")
-    result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
     names = [n for n, _ in COLUMNS if n in ("raw", "smoothed") or (run_dir / f"{n}.tum").exists()]
-    for name in names:
-        est = file_interface.read_tum_trajectory_file(run_dir / f"{name}.tum")
+    return gt, {n: file_interface.read_tum_trajectory_file(run_dir / f"{n}.tum") for n in names}
+
+
+def evaluate_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict:
+    """Errors of ``raw.tum``, ``smoothed.tum`` (and ``smoothed_no_loops.tum``, ``wheel_odom.tum``
+    when present) in ``run_dir`` against ``gt`` (a Trajectory)."""
+    gt, trajectories = _run_trajectories(Path(run_dir), gt)
+    result = {"ground_truth": {"poses": len(gt), **planarity(gt.poses)}}
+    for name, est in trajectories.items():
         result[name] = trajectory_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses,
                                          max_dt=max_dt).as_dict()
     return result
+
+
+#: Columns of :func:`format_per_frame_csv`, one row per trajectory and matched frame.
+PER_FRAME_COLUMNS = ("trajectory", "stamp", "along_m", "left_m", "up_m", "yaw_deg")
+
+
+def per_frame_run(run_dir: str | Path, gt=None, *, max_dt: float = 0.02) -> dict[str, dict]:
+    """:func:`planar_vo.metrics.per_frame_errors` of each trajectory :func:`evaluate_run`
+    compares, by name; a trajectory with fewer than 2 matched poses is left out."""
+    gt, trajectories = _run_trajectories(Path(run_dir), gt)
+    out = {}
+    for name, est in trajectories.items():
+        errors = per_frame_errors(est.timestamps, est.poses_se3, gt.stamps, gt.poses, max_dt=max_dt)
+        if errors is not None:
+            out[name] = errors
+    return out
+
+
+def format_per_frame_csv(per_frame: dict[str, dict]) -> str:
+    """:func:`per_frame_run`'s result as CSV text with :data:`PER_FRAME_COLUMNS` (stamps in
+    seconds to the microsecond, errors in metres and degrees)."""
+    lines = [",".join(PER_FRAME_COLUMNS)]
+    for name, e in per_frame.items():
+        for row in zip(e["stamp"], e["along_m"], e["left_m"], e["up_m"], e["yaw_deg"]):
+            lines.append(f"{name},{row[0]:.6f}," + ",".join(f"{v:.6f}" for v in row[1:]))
+    return "\n".join(lines) + "\n"
 
 
 #: Columns of the table: result key (= the run folder's file ``KEY.tum``), heading. The

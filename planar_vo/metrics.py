@@ -130,6 +130,39 @@ def trajectory_errors(est_stamps, est_poses, gt_stamps, gt_poses, *, max_dt: flo
     )
 
 
+def per_frame_errors(est_stamps, est_poses, gt_stamps, gt_poses, *, max_dt: float = 0.02) -> dict | None:
+    """Where an estimate's error grew: per matched frame, ``est_poses`` (N, 4, 4) against
+    ``gt_poses`` (M, 4, 4) after the first-pose alignment of the end-point drift.
+
+    Returns ``{"stamp", "along_m", "left_m", "up_m", "yaw_deg"}``, (K,) float64 each: the
+    position error along the ground-truth camera's heading (its optical axis projected on
+    the floor), to the left of it and up (world z, REP 103), and the heading error
+    (estimate minus truth, wrapped). The last row's ``hypot(along, left, up)`` is the end-point
+    drift. A gap at the start of a log shows as a jump in the first frames, a run of steps
+    measured short as a ramp in ``along_m``. Rows with a vertical optical axis (no heading)
+    are NaN in ``along_m`` and ``left_m``. None when fewer than 2 poses match.
+    """
+    try:
+        gt, est = sync.associate_trajectories(evo_trajectory(gt_stamps, gt_poses),
+                                              evo_trajectory(est_stamps, est_poses), max_diff=max_dt)
+    except sync.SyncException:
+        return None
+    if est.num_poses < 2:
+        return None
+    E, G = np.asarray(est.poses_se3), np.asarray(gt.poses_se3)
+    E = (G[0] @ np.linalg.inv(E[0]))[None] @ E  # the end-point drift's alignment
+    d = E[:, :3, 3] - G[:, :3, 3]
+    fwd = G[:, :3, 2].copy()
+    fwd[:, 2] = 0.0
+    norm = np.linalg.norm(fwd, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fwd = np.where(norm[:, None] > 1e-6, fwd / norm[:, None], np.nan)
+    left = np.stack([-fwd[:, 1], fwd[:, 0], np.zeros(len(fwd))], axis=1)  # z x fwd
+    yaw = [math.degrees(float(wrap_angle(yaw_of_cam(e) - yaw_of_cam(g)))) for e, g in zip(E, G)]
+    return {"stamp": np.asarray(est.timestamps, dtype=float), "along_m": np.einsum("ij,ij->i", d, fwd),
+            "left_m": np.einsum("ij,ij->i", d, left), "up_m": d[:, 2], "yaw_deg": np.array(yaw)}
+
+
 def planarity(gt_poses: np.ndarray) -> dict:
     """How planar a camera trajectory is: height range (m) and tilt range (deg) of its optical axis.
 
