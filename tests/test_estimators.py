@@ -497,3 +497,50 @@ def test_a_fit_the_sideways_prior_pins_at_zero_is_refitted_as_a_pure_rotation():
         s = np.sqrt(np.diag(cov))
         assert s[0] > 0.003, (k, s)
         assert np.all(np.abs(pose[:2] - gt[:2]) < 3.0 * s[:2]), (k, pose, gt, s)
+
+
+def _slid_corner_problem(rng, noise_m: float):
+    """Direction-plus-point matches of a 29 mm forward step at a 0.4 deg yaw: five far points
+    (3.5-3.9 m) read to ``noise_m``, two near floor points (1.9, 2.5 m) likewise, and one
+    floor point at 1.9 m that slid forward with the camera (it reads no forward motion). Returns
+    ``(P1, P2, yaw, t_true (3,), index of the slid point)``."""
+    yaw, t = math.radians(0.4), np.array([0.002, 0.0, -0.029])
+    P1 = np.array([[-1.16, -0.61, 3.59], [-1.17, -0.44, 3.90], [-1.18, -0.46, 3.61], [-1.18, -0.75, 3.75],
+                   [-1.17, -0.78, 3.49], [0.57, 0.75, 1.88], [-0.09, 0.75, 2.53], [-0.06, 0.75, 1.88]])
+    P2 = P1 @ rot_y(yaw).T + t
+    P2[-1, 2] = P1[-1, 2]  # slid forward with the camera
+    P2[:-1] += rng.normal(0.0, noise_m, (7, 3)) * np.array([1.0, 0.0, 1.0])
+    return P1, P2, yaw, t, len(P1) - 1
+
+
+def test_dpp_scatter_gate_drops_a_slid_corner_that_outweighs_agreeing_far_points():
+    """lturn_s9700 (9700 set, frame 200): far points agree to a millimetre, but the depth
+    model states them at 16-20 mm, so one near floor corner that slid with the camera
+    passed the model's gate and took a quarter of the weight (21.7 mm for a 29 mm step).
+    The gate narrowed to the inliers' own scatter drops it; the model's gate does not."""
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        P1, P2, yaw, t, slid = _slid_corner_problem(rng, 0.001)
+        # the plane-refined depth variance scales lturn_s9700's matches had: far 0.18, near 0.55
+        scale = np.where(P1[:, 2] > 3.0, 0.18, 0.55)
+        m, info = estimate_planar_motion_dpp(P1, P2, yaw, DirPointOptions(focal_px=540.7, seed=trial),
+                                             depth_scale=(scale, scale))
+        m0, info0 = estimate_planar_motion_dpp(P1, P2, yaw, DirPointOptions(focal_px=540.7, seed=trial,
+                                                                            scatter_gate=False),
+                                               depth_scale=(scale, scale))
+        assert info0.inliers[slid] and abs(m0.t[2] - t[2]) > 0.004, trial  # the model's gate keeps it
+        assert not info.inliers[slid] and info.num_inliers == len(P1) - 1, trial
+        assert abs(m.t[2] - t[2]) < 0.002 and abs(m.t[0] - t[0]) < 0.002, (trial, m.t, t)
+
+
+def test_dpp_scatter_gate_leaves_matches_that_scatter_as_modelled():
+    """Where the inliers scatter as the depth model says, the gate is the model's: the same
+    translation and inliers as without it, on ground-truth problems with the modelled noise."""
+    rng = np.random.default_rng(23)
+    for k in range(30):
+        # depth noise 0.006 Z^2 / 3 m: the options' model, 0.002 Z^2 (no constant term)
+        p = make_planar_problem(rng, 100, noise_px=0.5, scene_depth=3.0, depth_noise=0.006, outlier_ratio=0.3)
+        model = dict(focal_px=F, seed=k, depth_sigma_const=0.0, depth_sigma_quad=0.002)
+        m, info = estimate_planar_motion_dpp(p.P1, p.P2, p.yaw, DirPointOptions(**model))
+        m0, info0 = estimate_planar_motion_dpp(p.P1, p.P2, p.yaw, DirPointOptions(**model, scatter_gate=False))
+        assert np.array_equal(info.inliers, info0.inliers) and np.array_equal(m.t, m0.t), k
