@@ -184,8 +184,8 @@ class DirPointOptions:
     max_iterations: int = 200
     min_inliers: int = 3
     seed: int = 0
-    #: Narrow the refit's gate to the scatter the RANSAC inliers show, never wider than the
-    #: model (:func:`_scatter_gate`); False: the model's variances alone.
+    #: Narrow the refit's gate to the scatter the RANSAC inliers show along z when it is at
+    #: most half the modelled variance (:func:`_scatter_gate`); False: the model's variances alone.
     scatter_gate: bool = True
 
     def __post_init__(self):
@@ -1242,12 +1242,13 @@ def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
 
 
 def _scatter_gate(dx, dz, vx, vz, inl, opt: DirPointOptions):
-    """``(gx, gz, inliers)``: the factor ``gz`` (at most 1) on the candidates' modelled depth
+    """``(gx, gz, inliers)``: the factor ``gz`` on the candidates' modelled depth
     variances ``vz`` that the inliers ``inl`` show along z -- the squared MAD of their
     normalised residuals about their weighted median, pooled with the model at
     :data:`DPP_MODEL_DOF` as :func:`_pooled_scale` does -- ``gx`` = 1, and the candidates
     within ``opt.chi2`` of the medians at those variances (``inl`` when fewer than
-    ``opt.min_inliers`` are).
+    ``opt.min_inliers`` are). Where ``gz`` exceeds :data:`_SCATTER_GATE_MAX` nothing changes:
+    ``(1, 1, inl)``.
 
     The modelled depth noise grows with Z^2, and the sensor often reads far points far better
     than it says. A near point then outweighs several far ones, and a corner that slid with the
