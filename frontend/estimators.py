@@ -1227,14 +1227,14 @@ def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
     """Weighted means of the inliers' candidates, inliers re-selected against them:
     ``(tx, tz, inliers)``. With ``opt.scatter_gate`` the gate is first narrowed to the
     scatter the RANSAC inliers show about their weighted medians (:func:`_scatter_gate`)."""
-    gx = gz = 1.0
+    gz = 1.0
     if opt.scatter_gate:
-        gx, gz, inl = _scatter_gate(dx, dz, vx, vz, inl, opt)
+        gz, inl = _scatter_gate(dx, dz, vx, vz, inl, opt)
     for _ in range(3):
         wx, wz = 1.0 / vx[inl], 1.0 / vz[inl]
         tx = float((wx * dx[inl]).sum() / wx.sum())
         tz = float((wz * dz[inl]).sum() / wz.sum())
-        new = (dx - tx) ** 2 / (gx * vx) + (dz - tz) ** 2 / (gz * vz) < opt.chi2
+        new = (dx - tx) ** 2 / vx + (dz - tz) ** 2 / (gz * vz) < opt.chi2
         if new.sum() < opt.min_inliers or np.array_equal(new, inl):
             break
         inl = new
@@ -1242,13 +1242,12 @@ def _dpp_refit(dx, dz, vx, vz, inl, opt: DirPointOptions):
 
 
 def _scatter_gate(dx, dz, vx, vz, inl, opt: DirPointOptions):
-    """``(gx, gz, inliers)``: the factor ``gz`` on the candidates' modelled depth
-    variances ``vz`` that the inliers ``inl`` show along z -- the squared MAD of their
-    normalised residuals about their weighted median, pooled with the model at
-    :data:`DPP_MODEL_DOF` as :func:`_pooled_scale` does -- ``gx`` = 1, and the candidates
-    within ``opt.chi2`` of the medians at those variances (``inl`` when fewer than
-    ``opt.min_inliers`` are). Where ``gz`` exceeds :data:`_SCATTER_GATE_MAX` nothing changes:
-    ``(1, 1, inl)``.
+    """``(gz, inliers)``: the factor ``gz`` on the candidates' modelled depth variances
+    ``vz`` that the inliers ``inl`` show along z -- the squared MAD of their normalised
+    residuals about their weighted median, pooled with the model at :data:`DPP_MODEL_DOF` as
+    :func:`_pooled_scale` does -- and the candidates within ``opt.chi2`` of the medians at
+    those variances (``inl`` when fewer than ``opt.min_inliers`` are). Where ``gz`` exceeds
+    :data:`_SCATTER_GATE_MAX` nothing changes: ``(1, inl)``.
 
     The modelled depth noise grows with Z^2, and the sensor often reads far points far better
     than it says. A near point then outweighs several far ones, and a corner that slid with the
@@ -1266,9 +1265,9 @@ def _scatter_gate(dx, dz, vx, vz, inl, opt: DirPointOptions):
     r = (dz[inl] - cz) / np.sqrt(vz[inl])
     gz = _pooled_scale(n * (1.4826 * float(np.median(np.abs(r)))) ** 2, n)
     if gz > _SCATTER_GATE_MAX:
-        return 1.0, 1.0, inl
+        return 1.0, inl
     new = (dx - cx) ** 2 / vx + (dz - cz) ** 2 / (gz * vz) < opt.chi2
-    return 1.0, gz, (new if new.sum() >= opt.min_inliers else inl)
+    return gz, (new if new.sum() >= opt.min_inliers else inl)
 
 
 #: :func:`_scatter_gate` narrows the gate only when the inliers scatter along z by at most

@@ -100,21 +100,35 @@ def rpe_per_metre(gt: PoseTrajectory3D, est: PoseTrajectory3D, relation: metrics
     return float(rpe.get_statistic(metrics.StatisticsType.mean)) / delta_m
 
 
+def _associate(est_stamps, est_poses, gt_stamps, gt_poses, max_dt: float):
+    """``(gt, est)`` evo trajectories of the poses matched by stamp (``evo.core.sync``), or
+    None when no stamp is in common."""
+    try:
+        return sync.associate_trajectories(evo_trajectory(gt_stamps, gt_poses),
+                                           evo_trajectory(est_stamps, est_poses), max_diff=max_dt)
+    except sync.SyncException:
+        return None
+
+
+def _first_pose_aligned(E: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``E`` (K, 4, 4) moved so that its first pose is ``G[0]``: the paper's end-point drift
+    alignment."""
+    return (G[0] @ np.linalg.inv(E[0]))[None] @ E
+
+
 def trajectory_errors(est_stamps, est_poses, gt_stamps, gt_poses, *, max_dt: float = 0.02,
                       rpe_delta_m: float = RPE_DELTA_M) -> TrajectoryErrors:
     """Compare ``est_poses`` (N, 4, 4) to ``gt_poses`` (M, 4, 4); see the module docstring."""
     nan = float("nan")
-    try:
-        gt, est = sync.associate_trajectories(evo_trajectory(gt_stamps, gt_poses),
-                                              evo_trajectory(est_stamps, est_poses), max_diff=max_dt)
-    except sync.SyncException:  # no stamp in common
+    pair = _associate(est_stamps, est_poses, gt_stamps, gt_poses, max_dt)
+    if pair is None:  # no stamp in common
         return TrajectoryErrors(0, nan, nan, nan, nan, nan, nan, nan)
+    gt, est = pair
     if est.num_poses < 2:
         return TrajectoryErrors(est.num_poses, nan, nan, nan, nan, nan, nan, nan)
-    E, G = np.asarray(est.poses_se3), np.asarray(gt.poses_se3)
+    G = np.asarray(gt.poses_se3)
     length = path_length(G[:, :3, 3])
-    A = G[0] @ np.linalg.inv(E[0])  # first-pose alignment (the paper's end-point drift)
-    end = A @ E[-1]
+    end = _first_pose_aligned(np.asarray(est.poses_se3), G)[-1]
     drift = float(np.linalg.norm(end[:3, 3] - G[-1][:3, 3]))
     ate, alignment = ate_rmse(gt, est)
     return TrajectoryErrors(
@@ -142,15 +156,12 @@ def per_frame_errors(est_stamps, est_poses, gt_stamps, gt_poses, *, max_dt: floa
     measured short as a ramp in ``along_m``. Rows with a vertical optical axis (no heading)
     are NaN in ``along_m`` and ``left_m``. None when fewer than 2 poses match.
     """
-    try:
-        gt, est = sync.associate_trajectories(evo_trajectory(gt_stamps, gt_poses),
-                                              evo_trajectory(est_stamps, est_poses), max_diff=max_dt)
-    except sync.SyncException:
+    pair = _associate(est_stamps, est_poses, gt_stamps, gt_poses, max_dt)
+    if pair is None or pair[1].num_poses < 2:
         return None
-    if est.num_poses < 2:
-        return None
-    E, G = np.asarray(est.poses_se3), np.asarray(gt.poses_se3)
-    E = (G[0] @ np.linalg.inv(E[0]))[None] @ E  # the end-point drift's alignment
+    gt, est = pair
+    G = np.asarray(gt.poses_se3)
+    E = _first_pose_aligned(np.asarray(est.poses_se3), G)
     d = E[:, :3, 3] - G[:, :3, 3]
     fwd = G[:, :3, 2].copy()
     fwd[:, 2] = 0.0

@@ -18,11 +18,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from planar_vo.evaluation import (evaluate_run, format_per_frame_csv, format_table, load_ground_truth,
-                                      per_frame_run)
+    from planar_vo.evaluation import (evaluate_run, find_ground_truth, format_per_frame_csv, format_table,
+                                      load_ground_truth, per_frame_run)
     from planar_vo.io.atomic import write_text_atomic
 
-    gt = load_ground_truth(args.gt) if args.gt else None
+    # found once: the table and the per-frame errors read the same ground truth
+    gt = load_ground_truth(args.gt) if args.gt else find_ground_truth(Path(args.run_dir))
     result = evaluate_run(args.run_dir, gt, max_dt=args.max_dt)
     print(format_table(result))
     out = Path(args.json) if args.json else Path(args.run_dir) / "evaluation.json"
