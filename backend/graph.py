@@ -312,6 +312,19 @@ class _GraphBuilder:
             graph.add(f)
         return fuse_steps(p, info, p_w, info_w)
 
+    def _gap_factors(self, k: int, result: FrameResult, graph) -> None:
+        """The motions into an earlier gap's frames the front-end measured at frame ``k``
+        (``result.gap_links``, frontend/gapresection.py), each a factor of its own."""
+        for g in result.gap_links:
+            a, b = k - int(g.lag_from), k - int(g.lag_to)
+            if not (0 <= a <= k and 0 <= b <= k and a != b):
+                raise ValueError(f"FrameResult {result.index} (graph frame {k}): gap link lags {g.lag_from}, "
+                                 f"{g.lag_to} must name two frames of 0..{k}")
+            p = _check_pose(g.pose, f"FrameResult {result.index} gap_links pose")
+            info = _floored(_check_information(g.information, f"FrameResult {result.index} gap_links information"),
+                            self._floor)
+            graph.add(self.relative_factor(a, b, p, info, "gap_link"))
+
     def _guess_weighted(self, info: np.ndarray, guess: np.ndarray, copies: int) -> np.ndarray:
         """A step's information ``info`` (3, 3) with its part ``guess`` (3, 3), the front-end's
         constant-velocity guess, kept as ``backend.motion_prior_guess`` says; ``copies``: the
@@ -427,6 +440,7 @@ class _GraphBuilder:
             step = None
         else:
             p, info = self._step_factors(k, result, odometry, graph)
+            self._gap_factors(k, result, graph)
             step = (p, np.linalg.inv(info))
             self.assoc.predict(float(p[2]), float(step[1][2, 2]))
             prev = self.guess[-1] if previous is None else previous

@@ -90,6 +90,21 @@ class KeyframeYaw:
 
 
 @dataclass
+class GapLink:
+    """The motion of base_link between two frames, measured after a gap of unmeasured steps
+    (frontend/gapresection.py): from frame ``lag_from`` back to frame ``lag_to`` back (this
+    frame is 0 back), ``pose`` (3,) ``T_base_from_base_to`` as ``(x, y, theta)`` with (3, 3)
+    ``information`` in gtsam.Pose2 tangent order. Its translation is a resection's; its
+    yaw is stated at the bridged sigma, since the walls that gave the resection its yaw are
+    in the steps' own factors already. The back-end adds it as a factor of its own."""
+
+    lag_from: int
+    lag_to: int
+    pose: np.ndarray
+    information: np.ndarray
+
+
+@dataclass
 class Step:
     """Relative motion of base_link from the previous frame to this one.
 
@@ -164,6 +179,7 @@ class FrameDiagnostics:
     #: ``refused`` when the platform cannot make it (PlanarOdometry._keyframe_translation)
     partial_keyframe: dict | None = None
     bridge: str | None = None         # a bridged step: "constant_velocity" or "zero"
+    gap_links: int | None = None      # frames of an earlier gap resected at this frame (frontend/gapresection.py)
     #: the keyframe the step was measured against: frames since it, its corners still
     #: tracked, whether the step was re-measured against it (frontend/keyframe.py)
     keyframe: dict | None = None
@@ -172,7 +188,8 @@ class FrameDiagnostics:
 @dataclass
 class FrameResult:
     """Front-end output for one frame: the step into it, its Manhattan observations and
-    the walls it saw (``walls``: :class:`WallObservation`, those the Manhattan frames use)."""
+    the walls it saw (``walls``: :class:`WallObservation`, those the Manhattan frames use),
+    and the motions into an earlier gap's frames that could be measured only now (``gap_links``)."""
 
     index: int
     stamp: float
@@ -181,3 +198,5 @@ class FrameResult:
     timings: dict[str, float] = field(default_factory=dict)              # seconds per stage
     diagnostics: FrameDiagnostics = field(default_factory=FrameDiagnostics)
     walls: list[WallObservation] = field(default_factory=list)
+    #: motions into the frames of an earlier gap, measured now (:class:`GapLink`)
+    gap_links: list[GapLink] = field(default_factory=list)

@@ -316,6 +316,11 @@ class OdometryConfig:
     #: (frontend/farcorners.py): in an open hall most corners are out of range, and where the
     #: base stopped and drove on among such steps the constant-velocity guess held the stop.
     far_corners: bool = True
+    #: The gap of unmeasured steps a log starts with (no far corners before it to resect
+    #: against) is resected backwards, against the corners tracked across it, once the base
+    #: has driven half a metre on measured steps after it (frontend/gapresection.py); each
+    #: gap frame's motion goes to the back-end as a factor of its own. Needs ``far_corners``.
+    start_gap_resection: bool = True
     #: A partial step's translation along the direction its walls left to the guess (walls
     #: of one direction, with or without a few 3-D matches) is measured by aligning the two
     #: frames' depth images along it (box sides, door frames, end walls;

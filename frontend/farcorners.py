@@ -102,7 +102,8 @@ class Resection:
     """A solved :func:`resect`: ``motion`` ``(yaw, t)``; ``cov`` (3, 3) over ``(yaw, t_x,
     t_z)`` (image noise and the depths' errors); ``inliers`` (K,) bool; at the solution,
     over the inliers: ``J`` (L, 2, 3) the images' derivatives over the motion, ``D`` (L, 2)
-    over each corner's inverse depth, ``var`` (L, 2) the residuals' variances."""
+    over each corner's inverse depth, ``var`` (L, 2) the residuals' variances, and ``chi2``
+    the residuals' squares in those variances, summed (``2 L - 3`` degrees of freedom)."""
 
     motion: tuple[float, np.ndarray]
     cov: np.ndarray
@@ -110,6 +111,7 @@ class Resection:
     J: np.ndarray
     D: np.ndarray
     var: np.ndarray
+    chi2: float = float("nan")
 
 
 def resect(b: np.ndarray, rho: np.ndarray, var_rho: np.ndarray, x: np.ndarray, init: tuple[float, np.ndarray],
@@ -172,7 +174,7 @@ def resect(b: np.ndarray, rho: np.ndarray, var_rho: np.ndarray, x: np.ndarray, i
         return None
     if not (np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)):
         return None
-    return Resection((yaw, t), cov, inl, J[inl], D[inl], var[inl])
+    return Resection((yaw, t), cov, inl, J[inl], D[inl], var[inl], float((((p - x)[inl] ** 2) / var[inl]).sum()))
 
 
 def triangulate(b: np.ndarray, x: np.ndarray, motion: tuple, sigma: np.ndarray | float):
@@ -249,8 +251,14 @@ class FarCorners:
         self._cov = np.zeros((3, 3))
         self._age = 0
         self._resected: tuple | None = None  # this frame's resection (motion, cov)
+        self.resection: Resection | None = None  # this frame's resection from A (:meth:`step`)
         self._after_resection = False        # the motion A -> latest frame is a resection
         self._independent = True             # no resection since A: the motion is the steps'
+
+    @property
+    def age(self) -> int:
+        """Frames from A to the latest committed one (0: the latest frame is A)."""
+        return self._age
 
     def follow(self, matches: np.ndarray, n_features: int, unread: np.ndarray | None = None) -> None:
         """Carry A's corners to this frame through ``matches`` (M, 2) ``[i_prev, i_curr]``.
@@ -266,6 +274,7 @@ class FarCorners:
             owner[~unread] = -1
         self._owner = owner
         self._resected = None
+        self.resection = None
 
     def _sigma(self, age) -> np.ndarray | float:
         """Image sigma (normalised) of a corner over ``age`` frames: both views' noise and
@@ -322,6 +331,7 @@ class FarCorners:
         share = float(np.linalg.norm(stp[1])) / max(float(np.linalg.norm(res.motion[1])), 1e-9)
         cov_depth = (Gr * var[res.inliers]) @ Gr.T * min(share, 1.0) ** 2
         self._resected = (res.motion, cov_img)
+        self.resection = res
         return stp, cov_own + cov_depth, int(res.inliers.sum())
 
     def commit(self, x_lev: np.ndarray, P_lev: np.ndarray, step: tuple[float, np.ndarray] | None,

@@ -45,6 +45,7 @@ from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.depthalign import (DepthAlignOptions, align_along, align_yaw, coarse_yaw_along, informative,
                                            informative_yaw, sample_points)
 from planar_vo.frontend.farcorners import FarCorners, FarOptions
+from planar_vo.frontend.gapresection import GapFrame, StartGapResection
 from planar_vo.frontend.estimators import (DirPointOptions, MetricTwoPointOptions,
                                            estimate_planar_motion_2pt_metric, score_depth_matches,
                                            estimate_planar_motion_dpp)
@@ -57,8 +58,8 @@ from planar_vo.frontend.planes import Plane, PlaneDetection, PlaneDetector
 from planar_vo.frontend.pointplanes import refine_pairs_on_planes
 from planar_vo.frontend.solvers import yaw_from_manhattan_headings
 from planar_vo.core.steps import (STATUS_2PT, STATUS_BRIDGED, STATUS_DPP, STATUS_PARTIAL, FrameDiagnostics,
-                                      FrameResult, KeyframeLink, KeyframeYaw, ManhattanObservation, Step,
-                                      WallObservation)
+                                      FrameResult, GapLink, KeyframeLink, KeyframeYaw, ManhattanObservation,
+                                      Step, WallObservation)
 from planar_vo.core.types import CameraIntrinsics, Mount, RGBDFrame
 
 
@@ -451,6 +452,10 @@ class PlanarOdometry:
         self._far = FarCorners(FarOptions(
             pixel_sigma=self._dpp_opt.pixel_sigma / intrinsics.fx, walk=o.keyframe_track_px / intrinsics.fx,
             depth_sigma=(self._dpp_opt.depth_sigma_const, self._dpp_opt.depth_sigma_quad))) if o.far_corners else None
+        # the gap of unmeasured steps a log starts with, resected backwards after it
+        # (frontend/gapresection.py); its motions go out with the frame that measured them
+        self._gap = StartGapResection(self._far.opt) if self._far is not None and o.start_gap_resection else None
+        self._gap_links: list[GapLink] = []
         # this frame's keyframe.commit arguments: the motion keyframe -> this frame the step
         # was taken from, or the step that was guessed, each with its covariance
         self._kf_measured: tuple | None = None
@@ -550,7 +555,8 @@ class PlanarOdometry:
                                   self.config.odometry.wall_max_offset_m, self.config.manhattan.min_wall_width_m)
         timings["total"] = clock() - t_start
         self._n += 1
-        return FrameResult(frame.index, frame.stamp, step, observations, timings, info, walls)
+        return FrameResult(frame.index, frame.stamp, step, observations, timings, info, walls,
+                           gap_links=self._gap_links)
 
     def _measure(self, x_lev, P_lev, matches, frames, walls, planes, yaw_prior, info):
         """``(step or None, levelled (yaw, t, yaw variance))`` into this frame: estimated
@@ -564,8 +570,11 @@ class PlanarOdometry:
         if self._prev is not None:
             step, lev_motion = self._estimate(self._prev, x_lev, P_lev, matches, frames, walls, yaw_prior, info,
                                               planes)
+        far_step = self._far_step(step, lev_motion, info)
         if self._far is not None:
-            self._far.commit(x_lev, P_lev, *self._far_step(step, lev_motion, info))
+            self._far.commit(x_lev, P_lev, *far_step)
+        if self._gap is not None:
+            self._gap_links = self._gap_resected(x_lev, P_lev, matches, step, lev_motion, far_step[1], info)
         age = self._keyframes.kf.age + 1 if self._keyframes.kf is not None else 0
         renewed = self._keyframes.commit(x_lev, P_lev, planes, self._kf_measured, self._kf_guessed,
                                          walls=step is not None and step.status == STATUS_DPP,
@@ -574,6 +583,32 @@ class PlanarOdometry:
             self._keyframes.kf.depth, self._keyframes.kf.R_lev_cam = self._depth
         info.keyframe = {"age": age, "tracked": tracked, "renewed": renewed}
         return step, lev_motion
+
+    def _gap_resected(self, x_lev, P_lev, matches, step: Step | None, lev_motion, cov, info) -> list[GapLink]:
+        """Hand this frame to the start gap's resection (:class:`StartGapResection`); the
+        motions into the gap's frames it resected, as the back-end's :class:`GapLink`. ``cov``: the
+        step's levelled covariance when it was measured (:meth:`_far_step`), else None. A
+        step only the walls turned gives its yaw's variance to the resection's yaw prior."""
+        yaw_var = None
+        if cov is None and step is not None and step.status == STATUS_PARTIAL and info.partial \
+                and info.partial.get("yaw") == "measured":
+            yaw_var = float(lev_motion[2])
+        z = P_lev[:, 2]
+        # run backwards, the corners with a depth reading are the ones the gap's far corners
+        # come nearest as: they anchor it (only corners on a depth edge stay out)
+        followed = None if self._unread is None else self._unread | (np.isfinite(z) & (z > 0))
+        frame = GapFrame(x_lev, z, matches, followed, (float(lev_motion[0]), np.asarray(lev_motion[1])), cov, yaw_var)
+        mount = geometry.mount_se2(self.mount.T_base_cam)
+        yaw_info = 1.0 / math.radians(self.config.odometry.bridge_sigma_theta_deg) ** 2
+        out = []
+        for a, b, (yaw, t), cov_ab in self._gap.add(self._n, frame):
+            pose, cov_b = lev_motion_to_base_step(yaw, t, cov_ab, mount)
+            information = np.zeros((3, 3))
+            information[:2, :2] = np.linalg.inv(cov_b[:2, :2])
+            information[2, 2] = yaw_info
+            out.append(GapLink(self._n - a, self._n - b, pose, information))
+        info.gap_links = len(out) or None
+        return out
 
     @staticmethod
     def _far_step(step: Step | None, lev_motion, info) -> tuple:

@@ -10,6 +10,9 @@ writes the run folder:
 ``poses.mcap``                  both trajectories and the frame tree (ROS 2 messages for ROS logs,
                                 Foxglove schemas otherwise: ``output.poses_format``);
 ``report.json``                 counts, statuses, wall and CPU time per stage, frames per second;
+``steps.csv``                   the front-end's step into every frame, with its covariance;
+``gap_links.csv``               motions into the frames of a gap of unmeasured steps, measured
+                                after it (frontend/gapresection.py), when there were any;
 ``config.yaml``                 the resolved configuration;
 ``trajectory.png``              raw, smoothed and ground truth (when known), from above.
 
@@ -202,6 +205,8 @@ def _run(log_path, out_dir, config: RunConfig, *, progress, gt_path) -> RunResul
                                    closures=closer.accepted() if closer is not None else [], plotter=prepared.plotter)
             files.update(_write_no_loops(out, loop.stamps, no_loops, T_base_cam))
             files["steps"] = _write_steps(out / "steps.csv", loop.steps)
+            if loop.gap_links:
+                files["gap_links"] = _write_gap_links(out / "gap_links.csv", loop.gap_links)
             wheel_section, wheel_files = write_wheel_outputs(out, wheel, wheel_traj, getattr(graph, "stats", {}))
             files.update(wheel_files)
         if prepared.plotter is not None:
@@ -315,6 +320,7 @@ class _FrameLoop:
     partial: bool = False
     stop_reason: str | None = None
     memory: list = field(default_factory=list)  # (frames so far, resident MB) every MEMORY_EVERY frames
+    gap_links: list = field(default_factory=list)  # ``gap_links.csv`` rows
     yaw_guessed: int = 0  # partial steps whose yaw is the guess's
 
     def add(self, frame, result) -> None:
@@ -328,6 +334,8 @@ class _FrameLoop:
         self.frame_infos.append(frame_summary(result))
         if result.step is not None:
             self.steps.append(_step_row(result))
+        for link in result.gap_links:
+            self.gap_links.append(_gap_link_row(self.stamps, link))
 
     def counts(self) -> dict:
         return {k: v for k, v in self.statuses.items() if k != "first"}
@@ -586,6 +594,29 @@ def _step_row(result) -> list:
         rho = [float(cov[i, j] / (sd[i] * sd[j])) if sd[i] * sd[j] > 0 else 0.0 for i, j in ((0, 1), (0, 2), (1, 2))]
     lag = st.keyframe.lag if st.keyframe is not None else 1
     return [result.index, result.stamp, st.status, *map(float, st.pose), *map(float, sd), int(st.inliers), lag, *rho]
+
+
+GAP_LINKS_HEADER = "from_stamp,to_stamp,x,y,theta,sigma_x,sigma_y,rho_xy"
+
+
+def _gap_link_row(stamps: list, link) -> list:
+    """One ``gap_links.csv`` row of a :class:`~planar_vo.core.steps.GapLink` taken at the
+    last of ``stamps``: the colour stamps of its two frames, the base_link motion
+    ``T_base_from_base_to`` (x, y m; theta rad), the sigmas of its translation and their
+    correlation. Its yaw is the walls', stated in the steps; the link states none."""
+    n = len(stamps) - 1
+    with np.errstate(all="ignore"):
+        cov = np.linalg.inv(link.information)[:2, :2]
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        rho = float(cov[0, 1] / (sd[0] * sd[1])) if sd[0] * sd[1] > 0 else 0.0
+    return [stamps[n - link.lag_from], stamps[n - link.lag_to], *map(float, link.pose), *map(float, sd), rho]
+
+
+def _write_gap_links(path: Path, rows: list[list]) -> str:
+    lines = [GAP_LINKS_HEADER] + [f"{r[0]:.6f},{r[1]:.6f}," + ",".join(f"{v:.9g}" for v in r[2:7]) + f",{r[7]:.6f}"
+                                  for r in rows]
+    write_text_atomic(path, "\n".join(lines) + "\n")
+    return str(path)
 
 
 def _write_steps(path: Path, rows: list[list]) -> str:

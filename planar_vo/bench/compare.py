@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planar_vo.bench.sweep import STATUSES, group_records, summarise
+from planar_vo.bench.sweep import GAP_LINK, STATUSES, group_records, summarise
 
 #: The columns compared per layout: (summary key, label).
 COLUMNS = (("smoothed_drift_pct", "smoothed drift %"), ("smoothed_yaw_deg", "smoothed |yaw| deg"),
@@ -103,6 +103,11 @@ def _status_lines(g: dict | None) -> list[str]:
                            f"{v['rms'][0]:.2f} / {v['rms'][1]:.2f} / {v['rms'][2]:.2f}, {v['nees']:.1f}"
                            for v in (nb, na))
         out.append(f"{s:<8} {g['before']['steps'][s]:>7} -> {g['after']['steps'][s]:<7} {norm}")
+    nb, na = g["before"]["normalised"].get(GAP_LINK), g["after"]["normalised"].get(GAP_LINK)
+    if nb or na:  # translation only: x / y, e^T C^-1 e of 2 when honest
+        norm = " -> ".join("-" if v is None else f"{v['rms'][0]:.2f} / {v['rms'][1]:.2f}, {v['nees']:.1f} of 2"
+                           for v in (nb, na))
+        out.append(f"{'gap link':<8} {(nb or {}).get('n', 0):>7} -> {(na or {}).get('n', 0):<7} {norm}")
     return out
 
 

@@ -35,6 +35,8 @@ import numpy as np
 LAYOUTS = ("straight", "lturn", "loop", "two_frames", "hall")
 LONG_FRAMES = 1000
 STATUSES = ("dpp", "2pt", "partial", "bridged")
+#: The normalised errors' entry of the gap links (gap_links.csv), next to the statuses'.
+GAP_LINK = "gap_link"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -127,7 +129,10 @@ def _run_and_evaluate(log: Path, cfg, run_dir: Path, config_path: str | None) ->
         out[f"{k}_drift_pct"] = ev[k]["endpoint_drift_pct"]
         out[f"{k}_yaw_deg"] = ev[k]["final_yaw_error_deg"]
         out[f"{k}_ate_m"] = ev[k]["ate_rmse_m"]
-    out["normalised"] = step_errors(run_dir / "steps.csv", gt, np.asarray(synth_mount(cfg).T_base_cam))
+    T_base_cam = np.asarray(synth_mount(cfg).T_base_cam)
+    out["normalised"] = step_errors(run_dir / "steps.csv", gt, T_base_cam)
+    if (run_dir / "gap_links.csv").exists():
+        out["normalised"][GAP_LINK] = gap_link_errors(run_dir / "gap_links.csv", gt, T_base_cam)
     return out
 
 
@@ -147,18 +152,13 @@ def step_errors(steps_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
     rows = list(csv.DictReader(open(steps_csv)))
     inv_bc = np.linalg.inv(T_base_cam)
 
-    def base_at(stamp: float) -> np.ndarray:
-        i = int(np.argmin(np.abs(gt.stamps - stamp)))
-        T = gt.poses[i] @ inv_bc
-        return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
-
     out: dict = {}
     # steps.csv has a row for every frame but the first, in order: the step of row k
     # starts at the frame of row k - 1 (the first row's start frame is not in the file)
     stamps = [float(r["stamp"]) for r in rows]
     for k in range(1, len(rows)):
         r = rows[k]
-        g = se2_between(base_at(stamps[k - 1]), base_at(stamps[k]))
+        g = se2_between(_base_at(gt, inv_bc, stamps[k - 1]), _base_at(gt, inv_bc, stamps[k]))
         e = np.array([float(r["x"]), float(r["y"]), float(r["theta"])]) - g
         e[2] = float(wrap_angle(e[2]))
         s = np.array([float(r["sigma_x"]), float(r["sigma_y"]), float(r["sigma_theta"])])
@@ -170,6 +170,32 @@ def step_errors(steps_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
         d["sum_sq"] = [a + float(b) for a, b in zip(d["sum_sq"], z ** 2)]
         d["nees_sum"] += float(z @ np.linalg.lstsq(corr, z, rcond=None)[0])
     return out
+
+
+def _base_at(gt, inv_bc: np.ndarray, stamp: float) -> np.ndarray:
+    """Ground-truth base_link pose ``(x, y, theta)`` nearest ``stamp``."""
+    i = int(np.argmin(np.abs(gt.stamps - stamp)))
+    T = gt.poses[i] @ inv_bc
+    return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
+
+
+def gap_link_errors(links_csv: Path, gt, T_base_cam: np.ndarray) -> dict:
+    """As :func:`step_errors`, of the run's ``gap_links.csv``: translation only (the links
+    state no yaw), so ``sum_sq``'s theta is NaN and ``e^T C^-1 e`` is 2 per link when honest."""
+    from planar_vo.core.geometry import se2_between
+
+    inv_bc = np.linalg.inv(T_base_cam)
+    d = {"n": 0, "sum_sq": [0.0, 0.0, float("nan")], "nees_sum": 0.0}
+    for r in csv.DictReader(open(links_csv)):
+        g = se2_between(_base_at(gt, inv_bc, float(r["from_stamp"])), _base_at(gt, inv_bc, float(r["to_stamp"])))
+        e = np.array([float(r["x"]), float(r["y"])]) - g[:2]
+        s = np.array([float(r["sigma_x"]), float(r["sigma_y"])])
+        rho = float(r["rho_xy"])
+        z = e / s
+        d["n"] += 1
+        d["sum_sq"] = [d["sum_sq"][0] + float(z[0] ** 2), d["sum_sq"][1] + float(z[1] ** 2), float("nan")]
+        d["nees_sum"] += float(z @ np.linalg.solve(np.array([[1.0, rho], [rho, 1.0]]), z))
+    return d
 
 
 # ------------------------------------------------------------------ statistics
@@ -232,6 +258,13 @@ def summarise(records: list[dict]) -> dict:
     return out
 
 
+def _normalised_cell(status: str, v: dict, sep: str) -> str:
+    """``status x / y / theta, nees (n)``; a gap link's ``x / y, nees of 2 (n)``."""
+    if status == GAP_LINK:
+        return f"{status} {v['rms'][0]:.2f}{sep}{v['rms'][1]:.2f}, {v['nees']:.1f} of 2 ({v['n']})"
+    return f"{status} {v['rms'][0]:.2f}{sep}{v['rms'][1]:.2f}{sep}{v['rms'][2]:.2f}, {v['nees']:.1f} ({v['n']})"
+
+
 def format_summary(summary: dict) -> str:
     lines = []
     head = f"{'layout':<11}{'logs':>5}{'frames':>8}  " + "  ".join(f"{label:>26}" for _, label, _ in METRICS)
@@ -248,8 +281,7 @@ def format_summary(summary: dict) -> str:
     for name, g in summary.items():
         if name == "failed":
             continue
-        norm = "  ".join(f"{s} {v['rms'][0]:.2f}/{v['rms'][1]:.2f}/{v['rms'][2]:.2f}, {v['nees']:.1f} ({v['n']})"
-                         for s, v in sorted(g["normalised"].items()))
+        norm = "  ".join(_normalised_cell(s, v, "/") for s, v in sorted(g["normalised"].items()))
         lines.append(f"{name:<11}" + "".join(f"{g['steps'][s]:>10}" for s in STATUSES) + "   " + norm)
     for f in summary.get("failed", []):
         lines.append(f"FAILED {f['name']}: {f['reason']}")
@@ -270,8 +302,7 @@ def format_markdown(summary: dict, records: list[dict], command: str) -> str:
     for name, g in summary.items():
         if name == "failed":
             continue
-        norm = "; ".join(f"{s} {v['rms'][0]:.2f} / {v['rms'][1]:.2f} / {v['rms'][2]:.2f}, {v['nees']:.1f} ({v['n']})"
-                         for s, v in sorted(g["normalised"].items()))
+        norm = "; ".join(_normalised_cell(s, v, " / ") for s, v in sorted(g["normalised"].items()))
         out.append(f"| {name} | " + " | ".join(str(g["steps"][s]) for s in STATUSES) + f" | {norm} |")
     out += ["", "| log | frames | path m | texture | raw drift % | raw yaw | smoothed drift % | smoothed yaw | frames M |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
