@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from planar_vo.core import geometry as g
-from planar_vo.core.steps import STATUS_2PT, STATUS_PARTIAL, FrameDiagnostics
+from planar_vo.core.steps import STATUS_2PT, STATUS_PARTIAL
 from planar_vo.core.types import CameraIntrinsics, Mount
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.farcorners import FarCorners, FarOptions, resect, triangulate
 from planar_vo.frontend.keyframe import rot_y
-from planar_vo.frontend.odometry import PlanarOdometry, _Prev, lev_motion_to_base_step, lev_to_base_affine
+from planar_vo.frontend.odometry import PlanarOdometry, lev_motion_to_base_step, lev_to_base_affine
 from planar_vo.sim.problems import make_far_corner_drive
+from synthhelpers import drive_front_end
 
 K = CameraIntrinsics(960, 540, 540.7, 540.7, 479.5, 269.5)
 T_BASE_CAM = np.array([[0.0, 0.0, 1.0, 0.1], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.8], [0.0, 0.0, 0.0, 1.0]])
@@ -118,21 +119,8 @@ def test_a_stop_and_drive_on_is_resected_not_guessed():
 
 
 def _drive_odometry(d, config: FrontendConfig) -> list:
-    """The front-end's steps over a :class:`FarCornerDrive` (no walls, no images)."""
-    odo = PlanarOdometry(K, Mount(T_BASE_CAM), config)
-    n = d.x.shape[1]
-    ident = np.column_stack([np.arange(n), np.arange(n)])
-    out = []
-    for i in range(len(d.x)):
-        info = FrameDiagnostics()
-        info.floor_seen = True
-        yaw_prior = odo._last_motion[0] if odo._last_motion is not None else 0.0
-        odo._unread = ~np.isfinite(d.P[i][:, 2])  # as process() takes it from the tracker (features.unread)
-        step, _ = odo._measure(d.x[i], d.P[i], ident if i else ident[:0], [], [], [], yaw_prior, info)
-        odo._prev = _Prev(None, d.x[i], d.P[i], [], [], [])
-        odo._n += 1
-        out.append((step, info))
-    return out[1:]
+    """The front-end's ``(step, info)`` over a :class:`FarCornerDrive` (no walls, no images)."""
+    return [(step, info) for _, step, info, _ in drive_front_end(d, K, T_BASE_CAM, config)][1:]
 
 
 @pytest.mark.parametrize("far_corners", [True, False])

@@ -16,15 +16,16 @@ import pytest
 from planar_vo.backend.config import BackendConfig
 from planar_vo.backend.graph import PlanarPoseGraph
 from planar_vo.core import geometry as g
-from planar_vo.core.steps import STATUS_2PT, FrameDiagnostics, FrameResult, GapLink
-from planar_vo.core.types import CameraIntrinsics, Mount
+from planar_vo.core.steps import STATUS_2PT, FrameResult, GapLink
+from planar_vo.core.types import CameraIntrinsics
 from planar_vo.frontend.config import FrontendConfig
 from planar_vo.frontend.farcorners import FarOptions
 from planar_vo.frontend.gapresection import (AFTER_M, GapFrame, StartGapResection, invert, invert_covariance,
                                               variance_factor)
 from planar_vo.frontend.keyframe import between, compose
-from planar_vo.frontend.odometry import PlanarOdometry, _Prev, lev_motion_to_base_step
+from planar_vo.frontend.odometry import lev_motion_to_base_step
 from planar_vo.sim.problems import make_far_corner_drive
+from synthhelpers import drive_front_end
 
 K = CameraIntrinsics(960, 540, 540.7, 540.7, 479.5, 269.5)
 T_BASE_CAM = np.array([[0.0, 0.0, 1.0, 0.1], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.8], [0.0, 0.0, 0.0, 1.0]])
@@ -179,18 +180,8 @@ def test_variance_factor_is_the_residuals_and_a_bound():
 def _graph_run(d, config: FrontendConfig) -> np.ndarray:
     """The front-end's steps and gap links over a drive (no walls, no images) through the
     back-end: smoothed base_link poses (F, 3)."""
-    odo = PlanarOdometry(K, Mount(T_BASE_CAM), config)
-    n = d.x.shape[1]
-    ident = np.column_stack([np.arange(n), np.arange(n)])
     graph = PlanarPoseGraph(BackendConfig())
-    for i in range(len(d.x)):
-        info = FrameDiagnostics()
-        info.floor_seen = True
-        yaw_prior = odo._last_motion[0] if odo._last_motion is not None else 0.0
-        odo._unread = ~np.isfinite(d.P[i][:, 2])  # as process() takes it from the tracker (features.unread)
-        step, _ = odo._measure(d.x[i], d.P[i], ident if i else ident[:0], [], [], [], yaw_prior, info)
-        odo._prev = _Prev(None, d.x[i], d.P[i], [], [], [])
-        odo._n += 1
+    for i, step, info, odo in drive_front_end(d, K, T_BASE_CAM, config):
         graph.add_frame(FrameResult(i, 0.1 * i, step, [], {}, info, [], gap_links=list(odo._gap_links)))
     return graph.optimize()
 
