@@ -119,6 +119,11 @@ class StartGapResection:
         self._after = 0.0        # metres driven on measured steps since the last unmeasured one
         self._done = False       # resected, or no start gap
 
+    @property
+    def done(self) -> bool:
+        """Resected, or the log started measured: :meth:`add` keeps and returns nothing more."""
+        return self._done
+
     def add(self, n: int, frame: GapFrame) -> list[tuple[int, int, tuple[float, np.ndarray], np.ndarray]]:
         if self._done:
             return []

@@ -589,6 +589,8 @@ class PlanarOdometry:
         motions into the gap's frames it resected, as the back-end's :class:`GapLink`. ``cov``: the
         step's levelled covariance when it was measured (:meth:`_far_step`), else None. A
         step only the walls turned gives its yaw's variance to the resection's yaw prior."""
+        if self._gap.done:  # every frame after the log's start: nothing to keep or build
+            return []
         yaw_var = None
         if cov is None and step is not None and step.status == STATUS_PARTIAL and info.partial \
                 and info.partial.get("yaw") == "measured":

@@ -137,7 +137,7 @@ def test_the_resections_state_their_own_errors():
     assert np.all((rms > 0.5) & (rms < 2.0)), rms
 
 
-def test_a_bound_image_model_is_scaled_to_the_residuals():
+def test_a_bound_image_model_is_scaled_to_the_residuals(monkeypatch):
     """With the product's image model, 0.5 px and a drift of 0.5 px per sqrt(frame), over the
     simulation's 0.3 px without drift, the stated sigmas are a bound: scaled by the
     residuals (:func:`variance_factor`) the errors along the drive stay under 2 of them
@@ -147,12 +147,8 @@ def test_a_bound_image_model_is_scaled_to_the_residuals():
     rms = np.sqrt(np.mean(z[:, 1] ** 2))
     assert rms < 2.0, rms
     import planar_vo.frontend.gapresection as gr
-    floor = gr.MIN_VARIANCE_FACTOR
-    try:
-        gr.MIN_VARIANCE_FACTOR = 1.0  # no scaling: the model's own sigmas
-        _, z1, _ = _resected(0, BOUND, step_noise=0.0)
-    finally:
-        gr.MIN_VARIANCE_FACTOR = floor
+    monkeypatch.setattr(gr, "MIN_VARIANCE_FACTOR", 1.0)  # no scaling: the model's own sigmas
+    _, z1, _ = _resected(0, BOUND, step_noise=0.0)
     rms1 = np.sqrt(np.mean(z1[:, 1] ** 2))
     assert rms > 2.0 * rms1, (rms, rms1)
 
