@@ -118,9 +118,10 @@ class ManhattanConfig:
     #: the heading. On a small synthetic hall the observations the back-end takes were up
     #: to 43 deg off the hall's axes, within 0.81 deg with this (tests/test_odometry.py).
     #: Steps still use them: the heading *change* between two views of one box face is as
-    #: good as a wall's. A frame that has such a wall takes its heading from its walls this
-    #: wide only (manhattan._compass): a box face that joined a corridor's frame pulled its
-    #: heading by up to 1.5 deg. 0 reports every frame and weighs every wall in.
+    #: good as a wall's. The heading the back-end takes from a frame that has such a wall
+    #: comes from its walls this wide only (manhattan._compass): a box face that joined a
+    #: corridor's frame pulled it by up to 1.5 deg. 0 reports every frame and weighs every
+    #: wall in.
     min_wall_width_m: float = 1.0
 
     def __post_init__(self) -> None:

@@ -547,8 +547,8 @@ class PlanarOdometry:
         self._prev = _Prev(fs, x_lev, P_lev, frames, det.walls, planes, depth, R)
         m_base_lev = geometry.mount_se2(self.mount.T_base_cam)
         mount_yaw = m_base_lev[2]
-        observations = [ManhattanObservation(float(geometry.wrap_quarter(f.heading + mount_yaw)), f.sigma,
-                                             f.score, f.track_id)
+        observations = [ManhattanObservation(float(geometry.wrap_quarter(f.compass_heading + mount_yaw)),
+                                             f.compass_sigma, f.score, f.track_id)
                         for f in frames if f.score >= self.config.manhattan.min_score
                         and f.width >= self.config.manhattan.min_wall_width_m]
         walls = wall_observations(det.walls, m_base_lev, self.config.odometry.wall_min_support,

@@ -289,27 +289,14 @@ def test_a_wrong_manhattan_yaw_cannot_outscore_the_two_point_yaw_with_its_own_tr
     assert _vetoes(odo, 0.0, 2.0, 0.0) == 0 and _vetoes(odo, 0.0, 4.0, 0.0) == 0
 
 
-@pytest.fixture(scope="module")
-def wobble_sensor():
-    """The wobbling corridor with the depth sensor's effects at the middle of the
-    randomized scenes' ranges (``synth_random.RANGES``): noise growing at oblique
-    incidence, dropouts at depth edges."""
-    return _render(layout="straight", n_frames=60, seed=11, weave=0.025, weave_wavelength=1.2,
-                   depth_incidence=0.5, edge_dropout=0.6, resolution=(480, 270))
-
-
-def test_direction_plus_point_states_the_uncertainty_of_a_heading_difference(wobble_sensor):
+def test_direction_plus_point_states_the_uncertainty_of_a_heading_difference(wobble):
     """Honest uncertainty: the direction-plus-point yaw is a *difference* of two views of
     the same walls (eq. 1), so the walls' systematic errors and the levelling floor, common
     to both, cancel; stated as if independent, the yaw sigma was ~4x its real error, and
     through the lever arm of the points so was the sideways sigma. Error over stated sigma
-    must now have an RMS in the 0.5-2 band for the yaw; sideways, where the floor for
-    unmodelled errors dominates, it must not be overconfident. The band is the randomized
-    scenes' (`planar-vo bench sweep`: 0.99 for this yaw on the 10100 set), so the log has
-    their sensor effects: the walls' fit sigma hardly follows the incidence noise, and on
-    the clean render, since a frame's heading comes from its walls alone (no box face,
-    manhattan._compass), the yaw errs half its stated sigma (RMS 0.49; 0.88 before)."""
-    K, mount, frames = wobble_sensor
+    must now have an RMS in the 0.5-2 band for the yaw; sideways, where on this clean
+    render the floor for unmodelled errors dominates, it must not be overconfident."""
+    K, mount, frames = wobble
     odo = PlanarOdometry(K, mount)
     results = [odo.process(f.rgbd) for f in frames]
     err, status = _step_errors(results, frames)
