@@ -110,7 +110,9 @@ def group_walls(walls: list[Plane], config: ManhattanConfig | None = None) -> li
     for members, centre in zip(groups, centres):
         ws = [walls[j] for j in members]
         heading, sigma, sigma_fit = _mean_heading(ws, centre, floor_sigma)
-        compass, compass_sigma, _ = _mean_heading(_compass(ws, c), centre, floor_sigma)
+        wide = _compass(ws, c)
+        compass, compass_sigma = (heading, sigma) if len(wide) == len(ws) else \
+            _mean_heading(wide, centre, floor_sigma)[:2]
         frames.append(LocalFrame(float(wrap_quarter(heading)), sigma, float(sum(w.support for w in ws)),
                                  list(members), sigma_fit=sigma_fit, width=max(w.width for w in ws),
                                  compass_heading=float(wrap_quarter(compass)), compass_sigma=compass_sigma))

@@ -134,7 +134,6 @@ def test_dominant_manhattan_yaw_on_synthetic_corridor(synth_frames):
     assert max(errs) < 1.5, errs
 
 
-
 def test_a_narrow_face_joins_a_frame_but_not_its_compass_heading():
     """A box face 2 deg off a corridor's walls, within the grouping tolerance and its
     sigmas, joins their frame; weighted in by its small sigma it pulls the frame's heading
@@ -156,6 +155,7 @@ def test_a_narrow_face_joins_a_frame_but_not_its_compass_heading():
     expect = (0.5 / 0.37 ** 2 + 1.4 / 0.25 ** 2) / (1 / 0.37 ** 2 + 1 / 0.25 ** 2)  # weighted by 1/sigma^2
     assert len(boxes) == 1 and math.degrees(boxes[0].compass_heading) == pytest.approx(expect, abs=1e-9)
     assert boxes[0].compass_heading == boxes[0].heading
+
 
 def test_heading_sigma_splits_into_image_to_image_and_common_parts():
     """A frame's sigma keeps the walls' systematic term and the floor (one heading); its
