@@ -956,25 +956,28 @@ class PlanarOdometry:
         return True
 
     def _same_walls(self, prev: _Prev, f: LocalFrame, walls, yaw: float, local: float, yaw_sigma: float, info):
-        """``(yaw, local, yaw_sigma)`` of the direction-plus-point step, checked wall by wall.
+        """``(yaw, local, yaw_sigma)`` of the direction-plus-point step, checked wall by wall
+        when ``odometry.wall_yaw_check_sigmas`` > 0 (off by default).
 
         When the track's reference is its observation in the previous frame, the walls of
         the frame in both views are paired (:func:`match_walls`) and eq. 1 is also applied
         wall by wall. A disagreement beyond ``wall_yaw_check_sigmas`` means the group's
         walls changed (a wall a degree or two off joined or left it): the wall-by-wall yaw
-        is used. Otherwise the frame's yaw stands, since it telescopes along the track.
+        is used. Otherwise the frame's yaw stands, since it telescopes along the track --
+        which the substitution breaks when a face joins abruptly and fades out gradually.
         """
+        c = self.config.odometry
         pf = next((p for p in prev.frames if p.track_id == f.track_id), None)
-        if pf is None or f.prev_heading is None or f.prev_heading != pf.heading:
+        if c.wall_yaw_check_sigmas <= 0 or pf is None or f.prev_heading is None or f.prev_heading != pf.heading:
             return yaw, local, yaw_sigma
         t = self._last_motion[1] if self._last_motion is not None else np.zeros(3)
         pairs = match_walls([prev.walls[i] for i in pf.walls], [walls[j] for j in f.walls], yaw,
-                            np.array([t[0], t[2]]), self.config.odometry)
+                            np.array([t[0], t[2]]), c)
         if not pairs:
             return yaw, local, yaw_sigma
         y_w, s_w = yaw_from_wall_pairs(pairs, yaw)
         d = float(geometry.wrap_angle(y_w - yaw))
-        if abs(d) <= self.config.odometry.wall_yaw_check_sigmas * math.hypot(s_w, yaw_sigma):
+        if abs(d) <= c.wall_yaw_check_sigmas * math.hypot(s_w, yaw_sigma):
             return yaw, local, yaw_sigma
         info.group_changed = {"track_id": f.track_id, "frame_minus_walls_deg": -math.degrees(d),
                               "pairs": len(pairs)}

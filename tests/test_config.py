@@ -33,6 +33,7 @@ def test_file_and_overrides(tmp_path):
     ("frontend:\n  max_depth: 0.2\n", "'frontend.max_depth' must exceed"),
     ("frontend:\n  planes:\n    min_depth: 0.5\n", "unknown config key 'frontend.planes.min_depth'"),
     ("backend:\n  gate_sigmas: -1\n", "'backend.gate_sigmas' must be > 0"),
+    ("frontend:\n  odometry:\n    wall_yaw_check_sigmas: -1\n", "'odometry.wall_yaw_check_sigmas' must be >= 0"),
 ])
 def test_bad_config_is_one_clear_error(tmp_path, text, needle):
     p = tmp_path / "c.yaml"
