@@ -262,7 +262,8 @@ class OdometryConfig:
     #: disagree beyond this many sigmas (3 until the fifty-ninth stop). That catches an
     #: abrupt change and not a face fading out over several frames, so the chain kept one
     #: half of the pair for good: on the tuning seeds 3700-3703 the raw chain's final
-    #: |yaw| was 0.08 / 0.22 deg (median / mean) with 3, 0.03 / 0.17 with 0.
+    #: |yaw| was 0.085 / 0.230 deg (median / mean) with 3, 0.027 / 0.200 with 0
+    #: (docs/bench/changes_session62.md, section 4).
     #: 0 turns the check off.
     wall_yaw_check_sigmas: float = 0.0
     #: Partial steps: a wall seen in both frames fixes the translation along its normal
