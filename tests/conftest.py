@@ -1,7 +1,20 @@
-"""Shared fixtures: small synthetic logs rendered once per session."""
+"""Shared fixtures: small synthetic logs rendered once per session (per xdist worker)."""
+import os
+
 import pytest
 
 from planar_vo.sim.synth import SynthConfig, write_synth_log
+
+
+#: Most xdist workers ``-n auto`` starts: many tests run ``planar-vo run``, whose reader and
+#: plot processes take a core of their own, and each worker holds its module's rendered logs.
+MAX_WORKERS = 4
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (pyproject's addopts): one worker per usable core, at most MAX_WORKERS."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(MAX_WORKERS, cores or 1))
 
 
 @pytest.fixture(scope="session")
