@@ -117,6 +117,16 @@ class BackendConfig:
     #: shortfall), and a base speeding up faster than 0.5 m/s^2 (a dev hall at 0.8) is put
     #: short (docs/bench/start_at_rest_session24.md).
     motion_prior_start_at_rest: bool = False
+    #: True: where the measured steps on one side of a gap show a brake or a speed-up (a
+    #: slope of their velocity beyond 3 sigmas) and those on the other side a steady speed,
+    #: the prior expects that change of speed to go on into the gap until it meets the
+    #: steady speed, not to be spread over the whole gap (:meth:`_GraphBuilder._gap_trend`).
+    #: A base braking in front of the wall that ends a gap (its end wall coming into range)
+    #: is the common case: spread over a 100-step gap, a brake that began 4 steps before
+    #: the gap's end lost 0.19 m on unseen lturn_s10604 while the raw chain kept it.
+    #: False: no change expected, the speeds on both sides joined by a straight ramp. A batch
+    #: solve only: iSAM2 takes a gap's priors where the gap ends, before the steps after it.
+    motion_prior_gap_trend: bool = True
 
     # --- wheel odometry (a BetweenFactorPose2 per step when the log has it)
     #: Use the log's wheel odometry when it has one (``--no-wheel-odom`` turns it off).

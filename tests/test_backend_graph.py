@@ -497,6 +497,66 @@ def test_a_braking_base_is_not_held_to_a_cruise():
     assert err < 0.02
 
 
+def _gap_length_error(speeds, gap: range, seed: int, partial_after: bool = False, **config) -> float:
+    """Length error (m, signed) of the batch-smoothed path over ``gap`` and the steps either
+    side of it, in a run over ``speeds`` (10 Hz) whose steps in ``gap`` are partial (x guessed
+    0 at a 1 m sigma), the others measured along x at a stated 2.5 mm erring by 0.3 mm;
+    with ``partial_after`` those after the gap are partial steps so measured (walls ahead)."""
+    rng = np.random.default_rng(seed)
+    truth = _wobbling_truth(speeds)
+    res = _gap_results(truth, set(gap), lambda k: 0.0, rng)
+    for k in range(1, len(res)):
+        if k not in gap:
+            st = res[k].step
+            pose = st.pose.copy()
+            pose[0] = se2_between(truth[k - 1], truth[k])[0] + rng.normal(0, 3e-4)
+            info = np.diag([1 / 0.0025 ** 2, st.information[1, 1], st.information[2, 2]])
+            status = STATUS_PARTIAL if partial_after and k >= gap.stop else st.status
+            res[k] = FrameResult(k, res[k].stamp, Step(pose, info, status, 10), [])
+    lo, hi = gap.start - 2, gap.stop
+    return _solved_distance_error(res, truth, lo, hi, **config) if len(res) > hi else float("nan")
+
+
+def test_a_brake_that_began_in_a_gap_is_put_at_the_gap_s_end():
+    """lturn_s10604 (unseen 10600 set): a low-texture L whose end wall ended a 100-step gap
+    as the base braked to rest, the brake begun 4 steps before the gap's end. The prior
+    joined the cruise before the gap and the brake after it by a ramp over the whole gap,
+    and the smoothed end came 0.19 m short while the raw chain's cruise guess kept it. The
+    brake the measured steps after the gap show is now carried back into the gap until it
+    meets the cruise speed (``motion_prior_gap_trend``). Here (0.4 m/s, rest in 1.5 s, 4
+    seeds): the gap's length errs by 12-44 mm, against 215-244 mm with the ramp. Where, as
+    in lturn_s10604, the brake's steps are partial steps the wall ahead measured, 73-142 mm
+    against 563-628: the priors between those steps, in the same run of partial steps, are
+    still held to the cruise's acceleration and bend the brake back (not fixed here). A
+    cruise through the same gap, where neither side shows a change, gives the same result
+    both ways, and so does a brake that began after the gap."""
+    gap = range(20, 120)
+    brake = np.concatenate([np.full(116, 0.4), np.linspace(0.4, 0.0, 16)[1:]])
+    for partial_after in (False, True):  # True: as in lturn_s10604, the wall ahead measured the brake
+        trend = np.array([_gap_length_error(brake, gap, s, partial_after) for s in range(4)])
+        ramp = np.array([_gap_length_error(brake, gap, s, partial_after, motion_prior_gap_trend=False)
+                         for s in range(4)])
+        print("gap length errors (mm), trend / ramp:", np.round(trend * 1e3, 1), np.round(ramp * 1e3, 1))
+        assert np.all(ramp < -0.2)
+        assert np.all(np.abs(trend) < (0.25 * np.abs(ramp) if partial_after else 0.06))
+    later = np.concatenate([np.full(125, 0.4), np.linspace(0.4, 0.0, 16)[1:], np.zeros(5)])
+    for speeds in (np.full(140, 0.4), later):
+        assert _gap_length_error(speeds, gap, 0) == _gap_length_error(speeds, gap, 0, motion_prior_gap_trend=False)
+
+
+def test_a_speed_change_that_began_before_a_gap_goes_on_into_it():
+    """The mirror case: the base brakes from 0.4 to 0.2 m/s over 1.5 s, its first 0.8 s
+    measured, then a 40-step gap. Carried on from the steps before the gap until it meets
+    the steady speed after it, the gap's length errs by 52-65 mm (4 seeds), against 208-224
+    mm spread as a ramp."""
+    gap = range(20, 60)
+    speeds = np.concatenate([np.full(12, 0.4), np.linspace(0.4, 0.2, 16)[1:], np.full(80, 0.2)])
+    trend = np.array([_gap_length_error(speeds, gap, s) for s in range(4)])
+    ramp = np.array([_gap_length_error(speeds, gap, s, motion_prior_gap_trend=False) for s in range(4)])
+    print("gap length errors (mm), trend / ramp:", np.round(trend * 1e3, 1), np.round(ramp * 1e3, 1))
+    assert np.all(np.abs(trend) < 0.5 * np.abs(ramp))
+
+
 def _gap_with_short_steps(short, **config) -> float:
     """Length error (m) over a gap of 60 partial steps (x guessed at the cruise, 5 cm sigma)
     in a cruise at 0.76 m/s and 10 Hz whose measured steps are stated and err at 3 mm; the
