@@ -287,6 +287,7 @@ class _GraphBuilder:
         #: a batch solve, whose priors can wait for the window after the gap; iSAM2, as for
         #: a start gap, takes them where the gap ends
         self._gap_trends = config.motion_prior_gap_trend and hold_start_gap
+        self._trend_gap = None  # (first step, last step, speed profile or None) of the last gap seen
         self._mp_upto = 1               # the last frame whose velocity the prior ties
         self._mp_pending: list[int] = []  # frames whose prior waits for the steps after them
         self._mp_last_weak = -(1 << 30)  # the last frame whose translation was unmeasured
@@ -662,24 +663,39 @@ class _GraphBuilder:
         """(3,) the forward velocity change expected from step j-1 to step j, a prior that
         touches a gap (a run of steps whose forward speed was not measured,
         :meth:`_forward_measured`), or None (no change expected: the speeds on both sides are
-        joined by a straight ramp).
-
-        The forward velocities of the measured steps within ``motion_prior_window`` on each
-        side are fitted with a line each (:func:`_velocity_line`). Where one side's
-        slope is beyond 3 sigmas, the other's is not, and the slope leads from the steady
-        side's speed to its own, the change it shows is carried into the gap at that slope
-        until it meets the steady speed: a base braking in front of the wall that ended a
-        gap was braking for the last few steps of the gap, not over all of it. Spread over
-        the gap as a ramp, a brake that began 4 steps before the end of a 100-step gap
-        cost 0.19 m on unseen lturn_s10604 (the raw chain's cruise guess kept it)."""
-        w, n, measured = self.cfg.motion_prior_window, len(self._mp_vel), self._forward_measured
+        joined by a straight ramp; :meth:`_gap_speed`). A gap's priors are released in order
+        once it has ended, so its bounds and profile are found once and kept for the next."""
+        measured = self._forward_measured
         if measured(j) and measured(j - 1):
             return None  # both speeds measured (a partial step the wall ahead measured)
-        a = b = j - 1 if measured(j) else j
-        while a > 1 and not measured(a - 1):
-            a -= 1
-        while b + 1 < n and not measured(b + 1):
-            b += 1
+        i = j - 1 if measured(j) else j
+        gap = self._trend_gap
+        if gap is None or not gap[0] <= i <= gap[1]:
+            a = b = i
+            while a > 1 and not measured(a - 1):
+                a -= 1
+            while b + 1 < len(self._mp_vel) and not measured(b + 1):
+                b += 1
+            gap = self._trend_gap = (a, b, self._gap_speed(a, b))
+        speed = gap[2]
+        if speed is None:
+            return None
+        st = self._mp_stamps
+        return np.array([speed(0.5 * (st[j] + st[j - 1])) - speed(0.5 * (st[j - 1] + st[j - 2])), 0.0, 0.0])
+
+    def _gap_speed(self, a: int, b: int):
+        """The expected forward speed (m/s) as a function of time over the gap of steps
+        ``a..b``, or None (a ramp).
+
+        The forward velocities of the measured steps within ``motion_prior_window`` on each
+        side are fitted with a line each (:func:`_velocity_line`). Where one side's slope is
+        beyond 3 sigmas, the other's is not, and the slope leads from the steady side's speed
+        to its own, the change it shows is carried into the gap at that slope until it meets
+        the steady speed: a base braking in front of the wall that ended a gap was braking
+        for the last few steps of the gap, not over all of it. Spread over the gap as a
+        ramp, a brake that began 4 steps before the end of a 100-step gap cost 0.19 m on
+        unseen lturn_s10604 (the raw chain's cruise guess kept it)."""
+        w, n = self.cfg.motion_prior_window, len(self._mp_vel)
         before = _velocity_line(self._measured_forward(range(max(1, a - w), a)))
         after = _velocity_line(self._measured_forward(range(b + 1, min(n, b + 1 + w))))
         if before is None or after is None or before.changing == after.changing:
@@ -688,19 +704,14 @@ class _GraphBuilder:
         if after.changing:  # carried back from the side after the gap to the steady speed
             v_steady, slope = before.mean, after.slope
             tc = hi - (after.v_first - v_steady) / slope
-        else:               # carried on from the side before the gap to the steady speed
-            v_steady, slope = after.mean, before.slope
-            tc = lo + (v_steady - before.v_last) / slope
+            if not lo < tc < hi:
+                return None  # the slope leads away from the steady speed, or meets it outside the gap
+            return lambda t: v_steady if t <= tc else v_steady + slope * (t - tc)
+        v_steady, slope = after.mean, before.slope  # carried on from the side before the gap
+        tc = lo + (v_steady - before.v_last) / slope
         if not lo < tc < hi:
-            return None  # the slope leads away from the steady speed, or meets it outside the gap
-
-        def speed(t):  # the expected forward speed at time t
-            if after.changing:
-                return v_steady if t <= tc else v_steady + slope * (t - tc)
-            return v_steady if t >= tc else before.v_last + slope * (t - lo)
-        st = self._mp_stamps
-        tm = 0.5 * (st[j] + st[j - 1]), 0.5 * (st[j - 1] + st[j - 2])
-        return np.array([speed(tm[0]) - speed(tm[1]), 0.0, 0.0])
+            return None
+        return lambda t: v_steady if t >= tc else before.v_last + slope * (t - lo)
 
     def _measured_forward(self, frames) -> list[tuple[float, float, float]]:
         """``(t, v, variance)`` of the forward velocity of the steps among ``frames`` whose
