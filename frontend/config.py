@@ -327,6 +327,14 @@ class OdometryConfig:
     #: (frontend/farcorners.py): in an open hall most corners are out of range, and where the
     #: base stopped and drove on among such steps the constant-velocity guess held the stop.
     far_corners: bool = True
+    #: A step that no wall, no 2-point fit and no depth image turned takes the yaw of its
+    #: resection against the far corners (at that resection's sigma) in place of the
+    #: constant-turn-rate guess, where the two agree within 3 of their joint sigmas
+    #: (:meth:`PlanarOdometry._far_yaw`). A guess copies the last turn rate into a weave
+    #: that turns back: on seen hall_s10602 four such steps of a 0.2 deg/step weave went
+    #: 0.1-0.4 deg off each (1.0 deg over the four, kept to the end: no wall in that hall),
+    #: their resected yaws 0.02-0.05 deg at stated 0.07-0.08. Needs ``far_corners``.
+    far_yaw: bool = True
     #: The gap of unmeasured steps a log starts with (no far corners before it to resect
     #: against) is resected backwards, against the corners tracked across it, once the base
     #: has driven half a metre on measured steps after it (frontend/gapresection.py); each
@@ -383,6 +391,11 @@ class OdometryConfig:
     #: capped at the sigmas below, which also apply when no motion was ever measured.
     bridge_accel_xy: float = 0.5          # m/s^2
     bridge_accel_theta_deg: float = 30.0  # deg/s^2
+    #: The guess's error also counts the frames from the middle of the window it averages
+    #: (``velocity_window``) to the guessed frame, at the slope the window's steps show
+    #: (speeding up or braking; :meth:`PlanarOdometry._window_trend_drift`), not only the
+    #: frames since the last measured step. False: only those.
+    bridge_trend_lag: bool = True
     bridge_sigma_xy: float = 1.0     # metres
     #: The guessed velocity's drift stays within the platform's top speed (m/s; indoor
     #: bases drive at up to ~1 m/s, the randomized scenes at 0.2-0.8).
